@@ -1,0 +1,83 @@
+"""The wire contract of AVS: message models, the msgpack codec and the key expressions.
+
+Services share nothing but this package and the small common runtime. Every message is a
+pydantic model; ``encode`` / ``decode`` put it on and take it off the wire; ``Keys`` builds the
+key expressions of SPEC §1.
+"""
+
+from schemas.base import REGISTRY, Message, Model, Stamped
+from schemas.codec import ERROR_KINDS, CodecError, decode, encode
+from schemas.commands import BaseGoal, BaseVelocity, HeadCommand
+from schemas.gaze import EgoSphereSnapshot, GazeTarget
+from schemas.keys import DEFAULT_ROBOT, KEY_TABLE, Keys, KeySpec, spec_for
+from schemas.occupancy import BoxQuery, OccupancySlice, OccupancyStats
+from schemas.planning import NextBestView, ViewCandidates
+from schemas.runtime import QueryError, ServiceMetrics, TimingSummary
+from schemas.scene import (
+    Affordance,
+    BoxModel,
+    CylinderModel,
+    Obb,
+    PlaneModel,
+    PointCloud,
+    Primitive,
+    SceneGraph,
+    SceneModel,
+    SceneObservation,
+    SpatialEdge,
+    SphereModel,
+    SupportEdge,
+)
+from schemas.sensors import BasePose, CameraIntrinsics, ImuSample, JointState, RgbdFrame
+from schemas.sim import GroundTruth, GroundTruthObject, SimControl, SimStatus
+
+__all__ = [
+    "DEFAULT_ROBOT",
+    "ERROR_KINDS",
+    "KEY_TABLE",
+    "REGISTRY",
+    "Affordance",
+    "BaseGoal",
+    "BasePose",
+    "BaseVelocity",
+    "BoxModel",
+    "BoxQuery",
+    "CameraIntrinsics",
+    "CodecError",
+    "CylinderModel",
+    "EgoSphereSnapshot",
+    "GazeTarget",
+    "GroundTruth",
+    "GroundTruthObject",
+    "HeadCommand",
+    "ImuSample",
+    "JointState",
+    "KeySpec",
+    "Keys",
+    "Message",
+    "Model",
+    "NextBestView",
+    "Obb",
+    "OccupancySlice",
+    "OccupancyStats",
+    "PlaneModel",
+    "PointCloud",
+    "Primitive",
+    "QueryError",
+    "RgbdFrame",
+    "SceneGraph",
+    "SceneModel",
+    "SceneObservation",
+    "ServiceMetrics",
+    "SimControl",
+    "SimStatus",
+    "SpatialEdge",
+    "SphereModel",
+    "Stamped",
+    "SupportEdge",
+    "TimingSummary",
+    "ViewCandidates",
+    "decode",
+    "encode",
+    "spec_for",
+]

@@ -1,0 +1,48 @@
+"""What the robot obeys: platform goals and velocities, head joint commands."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import Field
+
+from schemas.arrays import Array, Dim
+from schemas.base import Stamped
+from schemas.types import Finite
+
+
+class BaseGoal(Stamped):
+    """Drive the holonomic platform to (x, y, yaw) in the world, through ``path`` if given
+    (waypoints (x, y, yaw) before the goal), within the platform's velocity limits."""
+
+    goal_id: str = Field("", description="echoed in BasePose.goal_id while this goal is driven")
+    x: float
+    y: float
+    yaw: float
+    path: Annotated[np.ndarray, Array("float64", (None, 3), max_rows=10_000), Finite()] | None = (
+        None
+    )
+
+
+class BaseVelocity(Stamped):
+    """Platform velocity in the base frame (m/s, rad/s); it stops after ``timeout`` s without a
+    newer command."""
+
+    v_x: float
+    v_y: float = 0.0
+    v_yaw: float = 0.0
+    timeout: float = Field(0.5, gt=0)
+
+
+class HeadCommand(Stamped):
+    """Positions (rad) or velocities (rad/s) for the named head/eye joints; others keep their
+    command. Values are clamped to the joint limits by the robot."""
+
+    names: Annotated[list[str], Dim("n")]
+    mode: Literal["position", "velocity"]
+    values: Annotated[np.ndarray, Array("float64", ("n",)), Finite()]
+    source: str = Field("", description="who commands: gaze, nbv, manual …")
+    trigger_stamp: float | None = Field(
+        None, description="stamp of the input that caused this command (latency tracing)"
+    )

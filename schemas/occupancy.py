@@ -1,0 +1,52 @@
+"""The occupancy map (OctoMap semantics, 4.3.1): counts and slices of voxel states."""
+
+from __future__ import annotations
+
+from typing import Annotated, ClassVar
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from schemas.arrays import Array
+from schemas.base import Message, Stamped
+from schemas.types import Vec3
+
+
+class BoxQuery(Message):
+    """Query payload: an axis-aligned box in the world (min and max corners, m)."""
+
+    box_min: Vec3
+    box_max: Vec3
+
+    @model_validator(mode="after")
+    def _ordered(self) -> BoxQuery:
+        if np.any(self.box_max < self.box_min):
+            raise ValueError("box_max must be >= box_min on every axis")
+        return self
+
+
+class OccupancyStats(Stamped):
+    """Voxel counts by state inside a box (the scene's roi by default)."""
+
+    voxel_size: float = Field(gt=0)
+    box_min: Vec3
+    box_max: Vec3
+    unknown: int = Field(ge=0)
+    free: int = Field(ge=0)
+    occupied: int = Field(ge=0)
+    map_version: int = Field(ge=0)
+    frames_integrated: int = Field(0, ge=0)
+
+
+class OccupancySlice(Stamped):
+    """Voxel states in a box: ``states[i, j, k]`` is the voxel whose min corner is
+    ``origin + voxel_size·(i, j, k)``; 0 unknown, 1 free, 2 occupied."""
+
+    UNKNOWN: ClassVar[int] = 0
+    FREE: ClassVar[int] = 1
+    OCCUPIED: ClassVar[int] = 2
+
+    voxel_size: float = Field(gt=0)
+    origin: Vec3
+    states: Annotated[np.ndarray, Array("uint8", (None, None, None))]
+    map_version: int = Field(ge=0)

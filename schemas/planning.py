@@ -1,0 +1,56 @@
+"""Next-best-view planning (Ch. 4): evaluated candidate views and the chosen one."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import Field
+
+from schemas.arrays import Array, Dim
+from schemas.base import Stamped
+from schemas.types import Finite, Pose, Rigid, Vec3
+
+
+def _column(dtype: str = "float64", description: str = "") -> Array:
+    return Array(dtype, ("n",), description=description)
+
+
+class ViewCandidates(Stamped):
+    """Every view v evaluated in one planning step, column-wise: IG(v) (Eq. 4.6), c(v)
+    (Eq. 4.9, inf when unreachable), u(v) (Eq. 4.13)."""
+
+    step: int = Field(ge=0)
+    strategy: str
+    sampling: str
+    center: Vec3 = Field(description="view-sphere centre")
+    views: Annotated[np.ndarray, Array("float64", ("n", 4, 4)), Rigid()] = Field(
+        description="T_world_camera of each view"
+    )
+    base_pose: Annotated[np.ndarray, Array("float64", ("n", 3)), Finite()] = Field(
+        description="platform pose (x, y, yaw) of each view (Eq. 4.2, 4.3)"
+    )
+    information_gain: Annotated[np.ndarray, _column()]
+    cost: Annotated[np.ndarray, _column(description="s, inf if unreachable")]
+    utility: Annotated[np.ndarray, _column()]
+    saliency: Annotated[np.ndarray, _column()]
+    reachable: Annotated[np.ndarray, _column("bool")]
+
+
+class NextBestView(Stamped):
+    """v̂ = argmax u(v), as a platform pose plus joint targets; or the decision to stop."""
+
+    step: int = Field(ge=0)
+    strategy: str
+    view: Pose = Field(description="T_world_camera of the chosen view")
+    x: float
+    y: float
+    yaw: float
+    joint_names: Annotated[list[str], Dim("k")]
+    joint_positions: Annotated[np.ndarray, Array("float64", ("k",)), Finite()]
+    target: Vec3 = Field(description="the point the view looks at (fixation for the gaze)")
+    information_gain: float
+    cost: float
+    utility: float
+    terminate: bool = False
+    reason: Literal["", "quality", "max_views", "no_candidates"] = ""

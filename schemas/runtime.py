@@ -1,0 +1,36 @@
+"""Messages of the service runtime itself: metrics and query errors."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from schemas.base import Message, Model, Stamped
+
+
+class TimingSummary(Model):
+    """Processing time of one handler over its recent calls, in milliseconds."""
+
+    count: int = Field(ge=0)
+    p50: float = Field(ge=0)
+    p90: float = Field(ge=0)
+    p99: float = Field(ge=0)
+    max: float = Field(ge=0)
+
+
+class ServiceMetrics(Stamped):
+    """Answer of ``metrics/<service>/<instance>``: counters since start and handler timings."""
+
+    service: str
+    instance: str
+    uptime_s: float = Field(ge=0)
+    messages_in: dict[str, int] = Field(default_factory=dict, description="per key expression")
+    messages_out: dict[str, int] = Field(default_factory=dict, description="per key expression")
+    dropped: dict[str, int] = Field(default_factory=dict, description="per reason")
+    processing_ms: dict[str, TimingSummary] = Field(default_factory=dict, description="per handler")
+    extra: dict[str, float] = Field(default_factory=dict, description="service-specific gauges")
+
+
+class QueryError(Message):
+    """Payload of an error reply to a query."""
+
+    error: str
