@@ -1,0 +1,1 @@
+"""AVS services: each a package with a pure core, a thin node and a ``__main__``."""

@@ -1,0 +1,298 @@
+"""The thin shell around every service's core: Zenoh in, validated messages to handlers, out.
+
+A ``Node`` owns the session, declares ``alive/<service>/<instance>`` and answers
+``metrics/<service>/<instance>``. Every input is decoded and validated before a handler sees it;
+what fails is dropped, counted per reason and logged once per reason — a bad message never stops
+a service, nor does a handler that raises. ``spin()`` blocks until SIGINT/SIGTERM or ``stop()``.
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterable
+from typing import Any, TypeVar
+
+import zenoh
+
+from schemas.base import Message
+from schemas.codec import CodecError, decode, encode
+from schemas.keys import Keys, check_chunk
+from schemas.runtime import QueryError
+from services.common.config import ServiceSettings
+from services.common.metrics import Metrics
+from services.common.transport import open_session, publisher_options
+
+M = TypeVar("M", bound=Message)
+
+
+class RemoteError(RuntimeError):
+    """A queryable answered with an error."""
+
+
+class Output:
+    """A declared publisher that encodes messages and counts them."""
+
+    def __init__(self, node: Node, key: str, **options: Any) -> None:
+        self.key = key
+        self._node = node
+        self._publisher = node.session.declare_publisher(
+            key, **{**publisher_options(key), **options}
+        )
+
+    def put(self, message: Message) -> None:
+        self._publisher.put(encode(message))
+        self._node.metrics.count_out(self.key)
+
+    @property
+    def matched(self) -> bool:
+        """Whether any subscriber currently matches this key."""
+        return self._publisher.matching_status
+
+    def undeclare(self) -> None:
+        self._publisher.undeclare()
+
+
+class Node:
+    """A service's connection to the system. Use as a context manager, or call ``close()``."""
+
+    def __init__(
+        self,
+        service: str,
+        settings: ServiceSettings,
+        session: zenoh.Session | None = None,
+    ) -> None:
+        self.service = check_chunk(service, "service name")
+        self.settings = settings
+        self.instance = settings.instance
+        self.keys = Keys(settings.robot)
+        self.log = logging.getLogger(f"avs.{service}")
+        self.metrics = Metrics(service, self.instance)
+        self._owns_session = session is None
+        self.session = session if session is not None else open_session(settings)
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._entities: list[Any] = []
+        self._token = self.session.liveliness().declare_token(
+            self.keys.alive(service, self.instance)
+        )
+        self.serve(self.keys.metrics(service, self.instance), lambda _req: self.metrics.snapshot())
+        self.log.info(
+            "node up",
+            extra={"robot": settings.robot, "alive": self.keys.alive(service, self.instance)},
+        )
+
+    # -- inputs -------------------------------------------------------------------------------
+
+    def _decode(self, key: str, payload: bytes, expect: type[M]) -> M | None:
+        try:
+            return decode(payload, expect)
+        except CodecError as e:
+            self._dropped(f"{e.kind}", key, str(e))
+            return None
+
+    def _dropped(self, reason: str, key: str, detail: str) -> None:
+        if self.metrics.drop(reason):
+            self.log.warning(
+                "dropping message: %s (further drops for this reason are only counted)",
+                detail,
+                extra={"key": key, "reason": reason},
+            )
+
+    def _handle(
+        self, name: str, handler: Callable[..., Any], message: Message, key: str, with_key: bool
+    ) -> None:
+        t0 = time.perf_counter()
+        try:
+            handler(message, key) if with_key else handler(message)
+        except Exception as e:
+            self._dropped(f"handler_error:{type(e).__name__}", key, f"{name} raised {e!r}")
+            self.log.debug("handler error", exc_info=True)
+        finally:
+            self.metrics.record(name, time.perf_counter() - t0)
+
+    def subscribe(
+        self,
+        key: str,
+        message_type: type[M],
+        handler: Callable[..., Any],
+        *,
+        latest_only: bool = False,
+        name: str | None = None,
+        with_key: bool = False,
+    ) -> None:
+        """Call ``handler`` with every valid ``message_type`` published on ``key`` (and the
+        sample's key, with ``with_key``).
+
+        With ``latest_only`` the handler runs on a thread of its own and always gets the newest
+        sample: a slow handler skips stale ones instead of queueing them.
+        """
+        name = name or getattr(handler, "__name__", key)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            k = str(sample.key_expr)
+            self.metrics.count_in(k)
+            message = self._decode(k, sample.payload.to_bytes(), message_type)
+            if message is not None:
+                self._handle(name, handler, message, k, with_key)
+
+        if not latest_only:
+            self._entities.append(self.session.declare_subscriber(key, on_sample))
+            return
+        subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(1))
+        self._entities.append(subscriber)
+
+        def pump() -> None:
+            while not self._stop.is_set():
+                try:
+                    sample = subscriber.handler.recv()
+                except zenoh.ZError:  # channel closed: undeclared or session closed
+                    return
+                on_sample(sample)
+
+        self._start_thread(pump, f"{self.service}:{name}")
+
+    def serve(
+        self,
+        key: str,
+        handler: Callable[[Any], Message | Iterable[Message]],
+        request_type: type[Message] | None = None,
+        *,
+        name: str | None = None,
+    ) -> None:
+        """Answer queries on ``key``: ``handler(request)`` returns the reply message(s); the
+        request is the decoded query payload (None without one). Errors are replied as
+        ``QueryError`` and counted."""
+        name = name or getattr(handler, "__name__", key)
+
+        def on_query(query: zenoh.Query) -> None:
+            k = str(query.key_expr)
+            self.metrics.count_in(k)
+            request = None
+            if query.payload is not None and request_type is not None:
+                try:
+                    request = decode(query.payload.to_bytes(), request_type)
+                except CodecError as e:
+                    self._dropped(e.kind, k, str(e))
+                    query.reply_err(encode(QueryError(error=str(e))))
+                    return
+            t0 = time.perf_counter()
+            try:
+                result = handler(request)
+                replies = [result] if isinstance(result, Message) else list(result)
+                reply_key = k if "*" in key else key
+                for message in replies:
+                    query.reply(reply_key, encode(message))
+                    self.metrics.count_out(reply_key)
+            except Exception as e:
+                self._dropped(f"handler_error:{type(e).__name__}", k, f"{name} raised {e!r}")
+                query.reply_err(encode(QueryError(error=f"{type(e).__name__}: {e}")))
+            finally:
+                self.metrics.record(name, time.perf_counter() - t0)
+
+        self._entities.append(self.session.declare_queryable(key, on_query))
+
+    # -- outputs ------------------------------------------------------------------------------
+
+    def publisher(self, key: str, **options: Any) -> Output:
+        """A publisher with the key table's QoS for ``key`` (``options`` override it)."""
+        output = Output(self, key, **options)
+        self._entities.append(output)
+        return output
+
+    def query(
+        self,
+        selector: str,
+        request: Message | None = None,
+        reply_type: type[M] = Message,  # type: ignore[assignment]
+        timeout: float = 5.0,
+    ) -> list[M]:
+        """Ask every matching queryable; returns the decoded replies. An error reply raises
+        ``RemoteError``; an undecodable reply is dropped and counted."""
+        payload = encode(request) if request is not None else None
+        replies: list[M] = []
+        for reply in self.session.get(selector, payload=payload, timeout=timeout):
+            if reply.ok is None:
+                text = reply.err.payload.to_bytes() if reply.err else b""
+                try:
+                    text = decode(text, QueryError).error
+                except CodecError:
+                    text = text.decode(errors="replace")
+                raise RemoteError(f"{selector}: {text}")
+            message = self._decode(selector, reply.ok.payload.to_bytes(), reply_type)
+            if message is not None:
+                replies.append(message)
+        return replies
+
+    # -- life cycle ---------------------------------------------------------------------------
+
+    def _start_thread(self, target: Callable[[], None], name: str) -> threading.Thread:
+        thread = threading.Thread(target=target, name=name, daemon=True)
+        thread.start()
+        self._threads.append(thread)
+        return thread
+
+    def every(self, period: float, callback: Callable[[], Any], name: str | None = None) -> None:
+        """Run ``callback`` every ``period`` seconds on a thread until the node stops; errors
+        are counted like handler errors."""
+        name = name or getattr(callback, "__name__", "periodic")
+
+        def loop() -> None:
+            next_t = time.monotonic()
+            while not self._stop.is_set():
+                t0 = time.perf_counter()
+                try:
+                    callback()
+                except Exception as e:
+                    self._dropped(f"handler_error:{type(e).__name__}", name, f"{name} raised {e!r}")
+                self.metrics.record(name, time.perf_counter() - t0)
+                next_t += period
+                delay = next_t - time.monotonic()
+                if delay < 0:  # overran: skip the missed ticks instead of bursting
+                    next_t = time.monotonic()
+                    delay = 0
+                self._stop.wait(delay)
+
+        self._start_thread(loop, f"{self.service}:{name}")
+
+    @property
+    def stopping(self) -> bool:
+        return self._stop.is_set()
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def install_signal_handlers(self) -> None:
+        """SIGINT and SIGTERM stop the node (main thread only)."""
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda _signum, _frame: self.stop())
+
+    def spin(self, timeout: float | None = None) -> None:
+        """Block until ``stop()`` (or a signal, after ``install_signal_handlers``)."""
+        self._stop.wait(timeout)
+
+    def close(self) -> None:
+        self.stop()
+        for entity in reversed(self._entities):
+            try:
+                entity.undeclare()
+            except Exception:
+                self.log.debug("undeclare failed", exc_info=True)
+        self._entities.clear()
+        try:
+            self._token.undeclare()
+        except Exception:
+            self.log.debug("token undeclare failed", exc_info=True)
+        for thread in self._threads:
+            thread.join(timeout=2.0)
+        if self._owns_session:
+            self.session.close()
+        self.log.info("node down")
+
+    def __enter__(self) -> Node:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()

@@ -1,0 +1,156 @@
+"""The node shell over a real Zenoh session on loopback: validation, drops, metrics, liveliness,
+queries, latest-only inputs."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import msgpack
+import numpy as np
+import pytest
+
+from schemas import (
+    ImuSample,
+    JointState,
+    Keys,
+    ServiceMetrics,
+    SimControl,
+    SimStatus,
+    decode,
+    encode,
+)
+from services.common import Node, RemoteError, ServiceSettings
+from tests.conftest import liveliness_tokens, wait_for
+
+
+def imu(seq: int) -> ImuSample:
+    return ImuSample(
+        seq=seq,
+        stamp=seq * 1e-3,
+        angular_velocity=np.array([0.0, 0.0, seq]),
+        linear_acceleration=np.array([0.0, 0.0, 9.81]),
+        orientation=np.array([1.0, 0.0, 0.0, 0.0]),
+    )
+
+
+@pytest.fixture
+def node(router):
+    settings = ServiceSettings(mode="client", connect=[router], multicast=False, instance="t0")
+    with Node("tester", settings) as n:
+        yield n
+
+
+def test_invalid_inputs_are_dropped_counted_and_logged_once(node, client, caplog):
+    keys = Keys()
+    got: list[ImuSample] = []
+    node.subscribe(keys.imu(), ImuSample, got.append)
+    bad = [
+        b"\x00\x01garbage",  # malformed
+        msgpack.packb({"schema": "Nope", "version": 1}),  # unknown_schema
+        msgpack.packb({"schema": "ImuSample", "version": 9}),  # wrong_version
+        encode(JointState(names=["a"], position=np.zeros(1), velocity=np.zeros(1))),
+        b"\x00\x02garbage",  # malformed again: counted, not logged again
+    ]
+    with caplog.at_level(logging.WARNING, logger="avs.tester"):
+        for payload in bad:
+            client.put(keys.imu(), payload)
+        for i in range(5):
+            client.put(keys.imu(), encode(imu(i)))
+        wait_for(lambda: len(got) == 5 and node.metrics.dropped_total == 5, 10, "all samples")
+    assert [m.seq for m in got] == [0, 1, 2, 3, 4]
+    dropped = node.metrics.snapshot().dropped
+    assert dropped == {
+        "malformed": 2,
+        "unknown_schema": 1,
+        "wrong_version": 1,
+        "unexpected_schema": 1,
+    }
+    warnings = [r for r in caplog.records if "dropping message" in r.getMessage()]
+    assert len(warnings) == 4  # once per reason
+    assert node.metrics.snapshot().messages_in == {keys.imu(): 10}
+
+
+def test_a_raising_handler_is_counted_and_the_node_goes_on(node, client):
+    keys = Keys()
+    seen: list[int] = []
+
+    def handler(m: ImuSample) -> None:
+        seen.append(m.seq)
+        if m.seq == 1:
+            raise RuntimeError("boom")
+
+    node.subscribe(keys.imu(), ImuSample, handler)
+    for i in range(3):
+        client.put(keys.imu(), encode(imu(i)))
+    wait_for(lambda: len(seen) == 3, 10, "three messages")
+    assert node.metrics.snapshot().dropped == {"handler_error:RuntimeError": 1}
+
+
+def test_metrics_queryable_and_liveliness(node, client):
+    keys = Keys()
+    assert liveliness_tokens(client, keys.alive()) == {keys.alive("tester", "t0")}
+    node.subscribe(keys.imu(), ImuSample, lambda m: None)
+    client.put(keys.imu(), b"junk")
+    wait_for(lambda: node.metrics.dropped_total == 1, 10, "the drop")
+    replies = [r.ok for r in client.get(keys.metrics(), timeout=5) if r.ok]
+    assert len(replies) == 1
+    metrics = decode(replies[0].payload.to_bytes(), ServiceMetrics)
+    assert (metrics.service, metrics.instance) == ("tester", "t0")
+    assert metrics.dropped == {"malformed": 1}
+    assert metrics.uptime_s > 0
+
+
+def test_liveliness_token_goes_with_the_node(router, client):
+    settings = ServiceSettings(mode="client", connect=[router], multicast=False, instance="t1")
+    node = Node("shortlived", settings)
+    key = Keys().alive("shortlived", "t1")
+    wait_for(lambda: key in liveliness_tokens(client, Keys().alive()), 10, "the token")
+    node.close()
+    wait_for(lambda: key not in liveliness_tokens(client, Keys().alive()), 10, "the token to go")
+
+
+def test_serve_and_query(node, router):
+    keys = Keys()
+
+    def control(request: SimControl) -> SimStatus:
+        if request.op == "pause":
+            raise ValueError("cannot pause")
+        return SimStatus(
+            ok=True, mode="lockstep", scene="s", robot="r", sim_time=0, steps=request.n
+        )
+
+    node.serve(keys.sim_control(), control, SimControl)
+    settings = ServiceSettings(mode="client", connect=[router], multicast=False, instance="q")
+    with Node("asker", settings) as asker:
+        (status,) = asker.query(keys.sim_control(), SimControl(op="step", n=4), SimStatus)
+        assert status.steps == 4
+        with pytest.raises(RemoteError, match="ValueError: cannot pause"):
+            asker.query(keys.sim_control(), SimControl(op="pause"), SimStatus)
+        with pytest.raises(RemoteError, match="expected SimControl"):
+            asker.query(keys.sim_control(), imu(0), SimStatus)
+    assert node.metrics.snapshot().dropped == {
+        "handler_error:ValueError": 1,
+        "unexpected_schema": 1,
+    }
+
+
+def test_latest_only_skips_stale_samples(node, client):
+    keys = Keys()
+    seen: list[int] = []
+    first = threading.Event()
+
+    def slow(m: ImuSample) -> None:
+        seen.append(m.seq)
+        first.set()
+        time.sleep(0.05)
+
+    node.subscribe(keys.imu(), ImuSample, slow, latest_only=True)
+    client.put(keys.imu(), encode(imu(0)))
+    assert first.wait(10)
+    for i in range(1, 101):
+        client.put(keys.imu(), encode(imu(i)))
+    wait_for(lambda: seen and seen[-1] == 100, 10, "the newest sample")
+    assert len(seen) < 20  # the rest were superseded while the handler was busy
+    assert seen == sorted(seen)
