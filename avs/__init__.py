@@ -1,0 +1,1 @@
+"""The ``avs`` command line: start the system, watch its streams, run episodes."""

@@ -1,0 +1,44 @@
+"""``avs``: one command line for the whole stack. Every command has ``--help``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from avs.commands import echo, run, schema, up
+from services.common.log import setup_logging
+
+COMMANDS = (run, up, echo, schema)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="avs",
+        description="AVS, the Active Vision Stack: semantic scene understanding and "
+        "next-best-view planning for humanoid robots, as Zenoh services.",
+    )
+    parser.add_argument(
+        "--log-level",
+        default="INFO",
+        choices=["DEBUG", "INFO", "WARNING", "ERROR"],
+        help="log level of this command (default INFO)",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in COMMANDS:
+        command.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    args = build_parser().parse_args(argv)
+    setup_logging("avs", args.command, args.log_level)
+    try:
+        status = args.func(args)
+    except KeyboardInterrupt:
+        status = 130
+    sys.exit(status or 0)
+
+
+if __name__ == "__main__":
+    main()

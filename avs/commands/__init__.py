@@ -1,0 +1,1 @@
+"""One module per ``avs`` sub-command, each with ``register(subparsers)`` and a handler."""

@@ -1,0 +1,116 @@
+"""``avs echo KEY``: print every message on KEY as one JSON line — the reference subscriber.
+
+Arrays with at most ``--max-array`` elements are printed in full, larger ones as dtype, shape
+and min / max / mean. Payloads that are not valid messages are counted and reported once per
+reason on stderr; they never stop the command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import threading
+from typing import Any
+
+import numpy as np
+from pydantic import BaseModel
+
+from avs.commands._transport import add_transport_arguments, settings_from
+from schemas.base import Message
+from services.common.node import Node
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser(
+        "echo",
+        help="print the messages on a key expression as JSON lines",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "key",
+        metavar="KEY",
+        help="key expression; without a leading 'avs/' it is relative to avs/<robot>/ "
+        "(e.g. sensors/imu, perception/**)",
+    )
+    parser.add_argument("--count", type=int, default=0, help="exit after N messages (0: never)")
+    parser.add_argument(
+        "--timeout", type=float, default=0.0, help="exit after S seconds (0: never)"
+    )
+    parser.add_argument(
+        "--max-array",
+        type=int,
+        default=16,
+        help="print arrays up to this many elements in full (default 16)",
+    )
+    add_transport_arguments(parser)
+    parser.set_defaults(func=_echo)
+
+
+def _number(x: float) -> Any:
+    if math.isfinite(x):
+        return x
+    return "NaN" if math.isnan(x) else ("Infinity" if x > 0 else "-Infinity")
+
+
+def to_jsonable(value: Any, max_array: int = 16) -> Any:
+    """A JSON-ready view of a message or any of its parts."""
+    if isinstance(value, BaseModel):
+        body = {k: to_jsonable(getattr(value, k), max_array) for k in type(value).model_fields}
+        if isinstance(value, Message):
+            body = {"schema": value.SCHEMA, "version": value.VERSION, **body}
+        return body
+    if isinstance(value, np.ndarray):
+        if value.size <= max_array:
+            return to_jsonable(value.tolist(), max_array)
+        out: dict[str, Any] = {"dtype": value.dtype.name, "shape": list(value.shape)}
+        if value.dtype.kind in "biuf" and value.size:
+            finite = value[np.isfinite(value)] if value.dtype.kind == "f" else value
+            if finite.size:
+                out.update(
+                    min=_number(float(finite.min())),
+                    max=_number(float(finite.max())),
+                    mean=_number(float(finite.mean())),
+                )
+        return out
+    if isinstance(value, float):
+        return _number(value)
+    if isinstance(value, dict):
+        return {str(k): to_jsonable(v, max_array) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [to_jsonable(v, max_array) for v in value]
+    return value
+
+
+def _echo(args: argparse.Namespace) -> int:
+    settings = settings_from(args)
+    key = args.key if args.key.startswith("avs/") else f"avs/{settings.robot}/{args.key}"
+    done = threading.Event()
+    printed = 0
+    lock = threading.Lock()
+
+    with Node("echo", settings) as node:
+        node.install_signal_handlers()
+
+        def show(message: Message, sample_key: str) -> None:
+            nonlocal printed
+            with lock:
+                if done.is_set():
+                    return
+                body = {"key": sample_key, "message": to_jsonable(message, args.max_array)}
+                line = json.dumps(body, allow_nan=False)
+                sys.stdout.write(line + "\n")
+                sys.stdout.flush()
+                printed += 1
+                if args.count and printed >= args.count:
+                    done.set()
+                    node.stop()
+
+        node.subscribe(key, Message, show, name="echo", with_key=True)
+        node.spin(args.timeout or None)
+    dropped = node.metrics.dropped_total
+    if dropped:
+        print(f"avs echo: dropped {dropped} invalid payloads", file=sys.stderr)
+    return 0

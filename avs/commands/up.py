@@ -1,0 +1,96 @@
+"""``avs up``: the Zenoh router on loopback plus every implemented service as a local process.
+
+The services connect to the router as clients with multicast off — the same commands and the
+same wiring as compose.yaml, without docker. Ctrl-C (or SIGTERM) stops them all. A service that
+exits on its own is restarted (at most three times).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import threading
+
+from avs.launcher import Supervisor
+from avs.router import DEFAULT_ENDPOINT, RouterError
+from avs.services import BY_NAME, SERVICES, ServiceInfo, existing
+
+log = logging.getLogger("avs.up")
+
+
+def add_system_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--listen",
+        default=DEFAULT_ENDPOINT,
+        help=f"the router's endpoint (default {DEFAULT_ENDPOINT})",
+    )
+    parser.add_argument("--robot", default="armar6", help="robot name (default armar6)")
+    parser.add_argument(
+        "--services",
+        default="",
+        help="comma-separated services to start (default: every implemented one of "
+        + ", ".join(s.name for s in SERVICES)
+        + ")",
+    )
+    parser.add_argument(
+        "--ready-timeout",
+        type=float,
+        default=60.0,
+        help="seconds to wait for every service's liveliness token (default 60)",
+    )
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser(
+        "up",
+        help="start the router and every service as local processes",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_system_arguments(parser)
+    parser.add_argument(
+        "--no-restart", action="store_true", help="do not restart a service that exits"
+    )
+    parser.set_defaults(func=_up)
+
+
+def chosen_services(names: str) -> list[ServiceInfo]:
+    if not names:
+        return existing()
+    chosen = []
+    for name in (n.strip() for n in names.split(",") if n.strip()):
+        info = BY_NAME.get(name)
+        if info is None:
+            raise SystemExit(f"avs: unknown service {name!r} (known: {', '.join(BY_NAME)})")
+        if not info.exists():
+            raise SystemExit(f"avs: service {name!r} is not implemented yet")
+        chosen.append(info)
+    return chosen
+
+
+def _up(args: argparse.Namespace) -> int:
+    services = chosen_services(args.services)
+    supervisor = Supervisor(services, args.listen, args.robot, restart=not args.no_restart)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        supervisor.start()
+    except RouterError as e:
+        raise SystemExit(f"avs: {e}") from None
+    try:
+        missing = [s.name for s in SERVICES if s not in services]
+        if missing:
+            log.info("not started (not implemented or not chosen): %s", ", ".join(missing))
+        if services and supervisor.wait_ready(args.ready_timeout):
+            log.info("all services alive: %s", ", ".join(s.name for s in services))
+        elif services:
+            log.warning("not every service is alive: %s", json.dumps(supervisor.report()))
+        log.info("ready; Ctrl-C stops everything")
+        print(json.dumps({"router": args.listen, "services": supervisor.report()}), flush=True)
+        supervisor.run_until(stop)
+    finally:
+        supervisor.stop()
+    return 0

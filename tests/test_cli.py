@@ -1,0 +1,136 @@
+"""The ``avs`` command line as a user runs it: every command has --help; echo prints and
+survives garbage; up and run start and stop cleanly."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import signal
+import subprocess
+import sys
+
+import msgpack
+import pytest
+import zenoh
+
+from avs.cli import build_parser
+from schemas import REGISTRY, Keys, ServiceMetrics, decode, encode
+from tests.conftest import avs_env, free_port, liveliness_tokens, session_config, wait_for
+from tests.streams import imu_sample
+
+AVS = [sys.executable, "-m", "avs.cli"]
+
+
+def _subcommands(parser) -> list[list[str]]:
+    paths = []
+    for action in parser._actions:
+        if action.__class__.__name__ == "_SubParsersAction":
+            for name, sub in action.choices.items():
+                paths.append([name])
+                paths += [[name, *rest] for rest in _subcommands(sub)]
+    return paths
+
+
+@pytest.mark.parametrize("command", [[], *_subcommands(build_parser())], ids=" ".join)
+def test_every_command_has_help(command):
+    out = subprocess.run([*AVS, *command, "--help"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "usage: avs" in out.stdout
+
+
+def test_echo_prints_valid_messages_and_counts_invalid_ones(router, client, procs):
+    keys = Keys()
+    echo = procs.start(
+        [*AVS, "echo", "sensors/imu"],
+        env=avs_env(router, AVS_INSTANCE="e1"),
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    wait_for(
+        lambda: keys.alive("echo", "e1") in liveliness_tokens(client, keys.alive()),
+        30,
+        "avs echo to come up",
+    )
+    for payload in (b"\xc1", msgpack.packb({"schema": "ImuSample", "version": 0}), b"1234"):
+        client.put(keys.imu(), payload)
+    for i in range(5):
+        client.put(keys.imu(), encode(imu_sample(i)))
+
+    def metrics() -> ServiceMetrics:
+        (reply,) = [r.ok for r in client.get(keys.metrics("echo", "e1"), timeout=5) if r.ok]
+        return decode(reply.payload.to_bytes(), ServiceMetrics)
+
+    wait_for(lambda: metrics().messages_in.get(keys.imu()) == 8, 20, "echo to receive all")
+    m = metrics()
+    assert sum(m.dropped.values()) == 3 and m.dropped["wrong_version"] == 1
+    assert echo.poll() is None  # still running after garbage
+    echo.send_signal(signal.SIGINT)
+    out, _ = echo.communicate(timeout=20)
+    assert echo.returncode == 0
+    lines = [json.loads(line) for line in out.splitlines()]
+    assert [line["message"]["seq"] for line in lines] == [0, 1, 2, 3, 4]
+    assert lines[0]["key"] == keys.imu()
+    assert lines[0]["message"]["schema"] == "ImuSample"
+    assert lines[2]["message"]["angular_velocity"] == imu_sample(2).angular_velocity.tolist()
+
+
+def test_echo_count_exits_by_itself(router, client, procs):
+    keys = Keys()
+    echo = procs.start(
+        [*AVS, "echo", "avs/armar6/sensors/**", "--count", "2"],
+        env=avs_env(router, AVS_INSTANCE="e2"),
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    wait_for(
+        lambda: keys.alive("echo", "e2") in liveliness_tokens(client, keys.alive()),
+        30,
+        "avs echo to come up",
+    )
+    i = 0
+    while echo.poll() is None and i < 1000:
+        client.put(keys.imu(), encode(imu_sample(i)))
+        i += 1
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            echo.wait(0.05)
+    out, _ = echo.communicate(timeout=20)
+    assert echo.returncode == 0
+    assert len(out.splitlines()) == 2
+
+
+def test_up_runs_a_router_that_clients_reach_and_stops_on_sigint(procs):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    up = procs.start([*AVS, "up", "--listen", endpoint], stdout=subprocess.PIPE, text=True)
+    ready = json.loads(up.stdout.readline())
+    assert ready["router"] == endpoint
+    with zenoh.open(session_config("client", connect=[endpoint])) as session:
+        wait_for(lambda: bool(session.info.routers_zid()), 10, "the router")
+    up.send_signal(signal.SIGINT)
+    assert up.wait(30) == 0
+
+
+def test_up_refuses_a_busy_port_with_one_line(router):
+    out = subprocess.run(
+        [*AVS, "up", "--listen", router], capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode != 0
+    assert "cannot start the Zenoh router" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_run_reports_and_exits_zero():
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    out = subprocess.run(
+        [*AVS, "run", "--listen", endpoint], capture_output=True, text=True, timeout=120
+    )
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    assert report["router"] == endpoint
+
+
+def test_schema_export(tmp_path):
+    out = subprocess.run(
+        [*AVS, "schema", "export", str(tmp_path)], capture_output=True, text=True, timeout=60
+    )
+    assert out.returncode == 0
+    assert sorted(p.stem for p in tmp_path.glob("*.json")) == sorted(REGISTRY)
