@@ -34,7 +34,7 @@ class Finite(_Check):
     """Every entry is finite."""
 
     def check(self, a: np.ndarray) -> None:
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError("entries must be finite")
 
 
@@ -42,15 +42,27 @@ class Rigid(_Check):
     """A rigid transform (or a stack of them): last row [0 0 0 1], rotation orthonormal, det +1."""
 
     def check(self, a: np.ndarray) -> None:
-        if not np.all(np.isfinite(a)):
-            raise ValueError("pose has non-finite entries")
         T = a.reshape(-1, 4, 4)
-        if not np.allclose(T[:, 3], (0.0, 0.0, 0.0, 1.0), atol=1e-9):
+        if not np.isfinite(T).all():
+            raise ValueError("pose has non-finite entries")
+        if T.size and np.abs(T[:, 3] - _LAST_ROW).max() > 1e-9:
             raise ValueError("a pose's last row must be [0, 0, 0, 1]")
         R = T[:, :3, :3]
-        RtR = np.einsum("kji,kjl->kil", R, R)
-        if not np.allclose(RtR, np.eye(3), atol=1e-5) or np.any(np.linalg.det(R) < 0):
-            raise ValueError("a pose's rotation is not orthonormal with det +1")
+        if T.size and np.abs(R.transpose(0, 2, 1) @ R - _EYE3).max() > 1e-5:
+            raise ValueError("a pose's rotation is not orthonormal")
+        # orthonormal, so det is ±1: the sign of (r0 × r1)·r2 tells which
+        r0, r1, r2 = R[:, :, 0], R[:, :, 1], R[:, :, 2]
+        det = (
+            r2[:, 0] * (r0[:, 1] * r1[:, 2] - r0[:, 2] * r1[:, 1])
+            + r2[:, 1] * (r0[:, 2] * r1[:, 0] - r0[:, 0] * r1[:, 2])
+            + r2[:, 2] * (r0[:, 0] * r1[:, 1] - r0[:, 1] * r1[:, 0])
+        )
+        if (det < 0).any():
+            raise ValueError("a pose's rotation is a reflection (det -1)")
+
+
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+_EYE3 = np.eye(3)
 
 
 class UnitQuaternion(_Check):

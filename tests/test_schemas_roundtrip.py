@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import msgpack
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from schemas import REGISTRY, decode, encode
+from schemas import REGISTRY, Message, decode, encode
 from schemas.arrays import WIRE_DTYPES, Array
 from schemas.base import Model, field_metadata
 from tests.strategies import model_strategy
@@ -25,6 +26,27 @@ def test_round_trip(name, cls, data):
     assert type(back) is cls
     assert back == message
     assert encode(back) == payload  # the wire form is canonical
+    assert payload == msgpack.packb(_plain(message), use_bin_type=True)
+
+
+def _plain(value):
+    """A message as the plain map any msgpack library would build (arrays as dtype/shape/bytes)."""
+    if isinstance(value, Message):
+        return {"schema": value.SCHEMA, "version": value.VERSION, **_plain_fields(value)}
+    if isinstance(value, Model):
+        return _plain_fields(value)
+    if isinstance(value, np.ndarray):
+        a = np.ascontiguousarray(value)
+        return {"dtype": a.dtype.name, "shape": list(a.shape), "bytes": a.tobytes()}
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _plain_fields(model):
+    return {k: _plain(getattr(model, k)) for k in type(model).model_fields}
 
 
 def _dtypes_in(cls: type[Model], seen: set[type]) -> set[str]:
