@@ -114,6 +114,14 @@ def procs() -> Iterator[Processes]:
     p.stop_all()
 
 
+def matched_publisher(session: zenoh.Session, key: str, timeout: float = 10) -> zenoh.Publisher:
+    """A publisher on ``key`` (congestion BLOCK) once a subscriber matches it: a put before the
+    subscriber's declaration has reached the router would go nowhere."""
+    publisher = session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+    wait_for(lambda: publisher.matching_status.matching, timeout, f"a subscriber on {key}")
+    return publisher
+
+
 def liveliness_tokens(session: zenoh.Session, key: str) -> set[str]:
     return {str(r.ok.key_expr) for r in session.liveliness().get(key, timeout=2.0) if r.ok}
 

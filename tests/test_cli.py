@@ -15,7 +15,13 @@ import zenoh
 
 from avs.cli import build_parser
 from schemas import REGISTRY, Keys, ServiceMetrics, decode, encode
-from tests.conftest import avs_env, free_port, liveliness_tokens, session_config, wait_for
+from tests.conftest import (
+    avs_env,
+    free_port,
+    matched_publisher,
+    session_config,
+    wait_for,
+)
 from tests.streams import imu_sample
 
 AVS = [sys.executable, "-m", "avs.cli"]
@@ -46,15 +52,11 @@ def test_echo_prints_valid_messages_and_counts_invalid_ones(router, client, proc
         stdout=subprocess.PIPE,
         text=True,
     )
-    wait_for(
-        lambda: keys.alive("echo", "e1") in liveliness_tokens(client, keys.alive()),
-        30,
-        "avs echo to come up",
-    )
+    publisher = matched_publisher(client, keys.imu(), timeout=30)  # echo is up and listening
     for payload in (b"\xc1", msgpack.packb({"schema": "ImuSample", "version": 0}), b"1234"):
-        client.put(keys.imu(), payload)
+        publisher.put(payload)
     for i in range(5):
-        client.put(keys.imu(), encode(imu_sample(i)))
+        publisher.put(encode(imu_sample(i)))
 
     def metrics() -> ServiceMetrics:
         (reply,) = [r.ok for r in client.get(keys.metrics("echo", "e1"), timeout=5) if r.ok]
@@ -82,14 +84,10 @@ def test_echo_count_exits_by_itself(router, client, procs):
         stdout=subprocess.PIPE,
         text=True,
     )
-    wait_for(
-        lambda: keys.alive("echo", "e2") in liveliness_tokens(client, keys.alive()),
-        30,
-        "avs echo to come up",
-    )
+    publisher = matched_publisher(client, keys.imu(), timeout=30)
     i = 0
     while echo.poll() is None and i < 1000:
-        client.put(keys.imu(), encode(imu_sample(i)))
+        publisher.put(encode(imu_sample(i)))
         i += 1
         with contextlib.suppress(subprocess.TimeoutExpired):
             echo.wait(0.05)

@@ -22,7 +22,7 @@ from schemas import (
     encode,
 )
 from services.common import Node, RemoteError, ServiceSettings
-from tests.conftest import liveliness_tokens, wait_for
+from tests.conftest import liveliness_tokens, matched_publisher, wait_for
 
 
 def imu(seq: int) -> ImuSample:
@@ -53,12 +53,18 @@ def test_invalid_inputs_are_dropped_counted_and_logged_once(node, client, caplog
         encode(JointState(names=["a"], position=np.zeros(1), velocity=np.zeros(1))),
         b"\x00\x02garbage",  # malformed again: counted, not logged again
     ]
+    publisher = matched_publisher(client, keys.imu())
     with caplog.at_level(logging.WARNING, logger="avs.tester"):
         for payload in bad:
-            client.put(keys.imu(), payload)
+            publisher.put(payload)
         for i in range(5):
-            client.put(keys.imu(), encode(imu(i)))
-        wait_for(lambda: len(got) == 5 and node.metrics.dropped_total == 5, 10, "all samples")
+            publisher.put(encode(imu(i)))
+        wait_for(
+            lambda: len(got) == 5 and node.metrics.dropped_total == 5,
+            10,
+            "all samples",
+            lambda: (len(got), node.metrics.snapshot()),
+        )
     assert [m.seq for m in got] == [0, 1, 2, 3, 4]
     dropped = node.metrics.snapshot().dropped
     assert dropped == {
@@ -82,8 +88,9 @@ def test_a_raising_handler_is_counted_and_the_node_goes_on(node, client):
             raise RuntimeError("boom")
 
     node.subscribe(keys.imu(), ImuSample, handler)
+    publisher = matched_publisher(client, keys.imu())
     for i in range(3):
-        client.put(keys.imu(), encode(imu(i)))
+        publisher.put(encode(imu(i)))
     wait_for(lambda: len(seen) == 3, 10, "three messages")
     assert node.metrics.snapshot().dropped == {"handler_error:RuntimeError": 1}
 
@@ -92,7 +99,7 @@ def test_metrics_queryable_and_liveliness(node, client):
     keys = Keys()
     assert liveliness_tokens(client, keys.alive()) == {keys.alive("tester", "t0")}
     node.subscribe(keys.imu(), ImuSample, lambda m: None)
-    client.put(keys.imu(), b"junk")
+    matched_publisher(client, keys.imu()).put(b"junk")
     wait_for(lambda: node.metrics.dropped_total == 1, 10, "the drop")
     replies = [r.ok for r in client.get(keys.metrics(), timeout=5) if r.ok]
     assert len(replies) == 1
@@ -147,10 +154,11 @@ def test_latest_only_skips_stale_samples(node, client):
         time.sleep(0.05)
 
     node.subscribe(keys.imu(), ImuSample, slow, latest_only=True)
-    client.put(keys.imu(), encode(imu(0)))
+    publisher = matched_publisher(client, keys.imu())
+    publisher.put(encode(imu(0)))
     assert first.wait(10)
     for i in range(1, 101):
-        client.put(keys.imu(), encode(imu(i)))
+        publisher.put(encode(imu(i)))
     wait_for(lambda: seen and seen[-1] == 100, 10, "the newest sample")
     assert len(seen) < 20  # the rest were superseded while the handler was busy
     assert seen == sorted(seen)

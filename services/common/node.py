@@ -49,7 +49,7 @@ class Output:
     @property
     def matched(self) -> bool:
         """Whether any subscriber currently matches this key."""
-        return self._publisher.matching_status
+        return self._publisher.matching_status.matching  # a MatchingStatus, not a bool
 
     def undeclare(self) -> None:
         self._publisher.undeclare()

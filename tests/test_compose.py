@@ -1,0 +1,73 @@
+"""compose.yaml, checked without a docker engine: it validates against the Compose
+Specification's JSON Schema, and follows our rules (router reachable, same commands as
+`avs up`, scalable services without container_name)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import jsonschema
+import pytest
+import yaml
+import zenoh
+
+from avs.services import BY_NAME, existing
+from tests.conftest import ROOT
+
+COMPOSE = yaml.safe_load((ROOT / "compose.yaml").read_text())
+SCHEMA_PATH = Path(os.environ.get("AVS_VENV", ROOT / ".venv")) / "share/avs/compose_spec.json"
+
+
+def test_validates_against_the_compose_specification():
+    if not SCHEMA_PATH.is_file():
+        pytest.fail(f"{SCHEMA_PATH} is missing: run scripts/setup.sh (scripts/test does)")
+    schema = json.loads(SCHEMA_PATH.read_text())
+    validator = jsonschema.Draft201909Validator(schema)  # the draft its $schema names
+    errors = sorted(validator.iter_errors(COMPOSE), key=lambda e: list(e.path))
+    assert not errors, "\n".join(f"{list(e.path)}: {e.message}" for e in errors)
+
+
+def test_the_router():
+    router = COMPOSE["services"]["router"]
+    assert router["image"].startswith("eclipse/zenoh:")
+    assert "7447:7447/tcp" in router["ports"]
+    source = router["volumes"][0].split(":")[0]
+    config_file = ROOT / source
+    assert router["command"] == ["-c", router["volumes"][0].split(":")[1]]
+    config = zenoh.Config.from_file(str(config_file))  # zenoh itself parses it
+    assert json.loads(config.get_json("mode")) == "router"
+    assert json.loads(config.get_json("listen/endpoints")) == ["tcp/[::]:7447"]
+    assert json.loads(config.get_json("scouting/multicast/enabled")) is False
+
+
+def _services() -> dict[str, dict]:
+    return {k: v for k, v in COMPOSE["services"].items() if k != "router"}
+
+
+def test_every_implemented_service_is_deployed_with_the_command_avs_up_runs():
+    services = _services()
+    assert sorted(services) == sorted(s.name for s in existing())
+    for name, service in services.items():
+        assert service["command"] == ["python", *BY_NAME[name].argv()], name
+
+
+def test_every_service_reaches_the_router():
+    for name, service in _services().items():
+        env = service["environment"]
+        assert env["AVS_CONNECT"] == "tcp/router:7447", name
+        assert env["AVS_MODE"] == "client" and env["AVS_MULTICAST"] == "false", name
+        assert "router" in service["depends_on"], name
+
+
+def test_scalable_services_have_no_container_name():
+    for name, service in _services().items():
+        if BY_NAME[name].scalable:
+            assert "container_name" not in service, name
+
+
+def test_the_service_template_is_what_every_service_uses():
+    template = COMPOSE["x-avs-service"]
+    assert template["build"] == "." and template["environment"]["AVS_CONNECT"] == "tcp/router:7447"
+    assert (ROOT / "Dockerfile").is_file()
