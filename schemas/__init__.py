@@ -29,7 +29,7 @@ from schemas.scene import (
     SupportEdge,
 )
 from schemas.sensors import BasePose, CameraIntrinsics, ImuSample, JointState, RgbdFrame
-from schemas.sim import GroundTruth, GroundTruthObject, SimControl, SimStatus
+from schemas.sim import GroundTruth, GroundTruthObject, GroundTruthQuery, SimControl, SimStatus
 
 __all__ = [
     "DEFAULT_ROBOT",
@@ -49,6 +49,7 @@ __all__ = [
     "GazeTarget",
     "GroundTruth",
     "GroundTruthObject",
+    "GroundTruthQuery",
     "HeadCommand",
     "ImuSample",
     "JointState",

@@ -124,8 +124,11 @@ def _validation_text(schema: str, error: ValidationError) -> str:
     return f"{schema}: " + "; ".join(parts) + (f" (+{more} more)" if more > 0 else "")
 
 
-def decode(payload: bytes | bytearray | memoryview, expect: type[M] | None = None) -> M:
-    """Decode one message; with ``expect``, refuse any other message type.
+def decode(
+    payload: bytes | bytearray | memoryview,
+    expect: type[M] | tuple[type[Message], ...] | None = None,
+) -> M:
+    """Decode one message; with ``expect`` (a type or a tuple of types), refuse any other.
 
     Arrays in the result are read-only views of the payload's bytes.
     """
@@ -148,7 +151,10 @@ def decode(payload: bytes | bytearray | memoryview, expect: type[M] | None = Non
             schema,
         )
     if expect is not None and not issubclass(cls, expect):
-        raise CodecError("unexpected_schema", f"expected {expect.SCHEMA}, got {schema}", schema)
+        wanted = " or ".join(
+            t.SCHEMA or t.__name__ for t in (expect if isinstance(expect, tuple) else (expect,))
+        )
+        raise CodecError("unexpected_schema", f"expected {wanted}, got {schema}", schema)
     try:
         return cls.model_validate(data, context=WIRE_CONTEXT)  # type: ignore[return-value]
     except ValidationError as e:

@@ -60,7 +60,7 @@ KEY_TABLE: tuple[KeySpec, ...] = (
     KeySpec("nbv/next_view", ("NextBestView",), "stream", "nbv", "block", "interactive_low", False, "per planning step"),
     KeySpec("gaze/target", ("GazeTarget",), "command", "nbv", "block", "interactive_high", False, "on demand"),
     KeySpec("gaze/egosphere", ("EgoSphereSnapshot",), "stream", "gaze", "drop", "data_low", False, "2-10 Hz"),
-    KeySpec("sim/ground_truth", ("GroundTruth",), "queryable", "sim", note="queryable"),
+    KeySpec("sim/ground_truth", ("GroundTruthQuery", "GroundTruth"), "queryable", "sim", note="queryable"),
     KeySpec("sim/control", ("SimControl", "SimStatus"), "queryable", "sim", note="queryable"),
     KeySpec("alive/*/*", (), "liveliness", "every service", note="liveliness token"),
     KeySpec("metrics/*/*", ("ServiceMetrics",), "queryable", "every service", note="queryable"),

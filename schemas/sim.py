@@ -39,6 +39,15 @@ class GroundTruth(Stamped):
     labels: list[str] = Field(default_factory=list)
 
 
+class GroundTruthQuery(Message):
+    """Query payload of sim/ground_truth: which camera to segment (default: the robot's first)
+    and what to compute."""
+
+    camera: str = ""
+    segmentation: bool = True
+    support: bool = True
+
+
 SimOp = Literal["reset", "step", "render", "pause", "resume", "set_disturbance", "status"]
 
 
