@@ -91,7 +91,7 @@ def _echo(args: argparse.Namespace) -> int:
     printed = 0
     lock = threading.Lock()
 
-    with Node("echo", settings) as node:
+    with Node("echo", settings, announce=False) as node:
         node.install_signal_handlers()
 
         def show(message: Message, sample_key: str) -> None:
@@ -109,6 +109,7 @@ def _echo(args: argparse.Namespace) -> int:
                     node.stop()
 
         node.subscribe(key, Message, show, name="echo", with_key=True)
+        node.announce()
         node.spin(args.timeout or None)
     dropped = node.metrics.dropped_total
     if dropped:

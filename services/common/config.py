@@ -9,6 +9,7 @@ description is its ``--help`` text.
 from __future__ import annotations
 
 import argparse
+import inspect
 import os
 import socket
 import sys
@@ -50,6 +51,16 @@ class Settings(BaseModel):
     #: service name: fields declared below ``BASE`` are read from ``AVS_<SERVICE>_<FIELD>``.
     SERVICE: ClassVar[str] = ""
     BASE: ClassVar[type[BaseModel] | None] = None
+
+    @classmethod
+    def __pydantic_init_subclass__(cls, **kwargs: object) -> None:
+        super().__pydantic_init_subclass__(**kwargs)
+        base = cls.BASE
+        own = set(inspect.get_annotations(cls))
+        if base is not None and cls is not base and own & set(base.model_fields):
+            raise TypeError(
+                f"{cls.__name__} redefines shared settings {sorted(own & set(base.model_fields))}"
+            )
 
     @classmethod
     def env_name(cls, field: str) -> str:

@@ -70,3 +70,4 @@ def setup_logging(service: str, instance: str, level: str = "INFO", fmt: str = "
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level)
+    logging.getLogger("OpenGL").setLevel(logging.WARNING)  # PyOpenGL's import chatter

@@ -3,31 +3,26 @@
 from __future__ import annotations
 
 import logging
-import sys
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any
 
 from services.common.config import ServiceSettings
 from services.common.log import setup_logging
 from services.common.node import Node
 
-S = TypeVar("S", bound=ServiceSettings)
 
-
-def run_service(
-    settings_type: type[S], build: Callable[[Node, S], Any], argv: list[str] | None = None
-) -> int:
-    """Parse the settings, start a node, let ``build(node, settings)`` declare the service's
-    inputs and outputs, and block until SIGINT/SIGTERM. Whatever ``build`` returns is closed
-    (if it has ``close()``) before the node."""
-    settings = settings_type.from_args(argv)
-    service = settings_type.SERVICE
+def run_node(settings: ServiceSettings, build: Callable[[Node], Any]) -> int:
+    """Start a node for ``settings``, let ``build(node)`` declare the service's inputs and
+    outputs, and block until SIGINT/SIGTERM (or the service stops the node). Whatever ``build``
+    returns is closed (if it has ``close()``) before the node."""
+    service = type(settings).SERVICE
     setup_logging(service, settings.instance, settings.log_level, settings.log_format)
     log = logging.getLogger(f"avs.{service}")
     log.info("settings", extra={"settings": settings.model_dump(mode="json")})
-    with Node(service, settings) as node:
+    with Node(service, settings, announce=False) as node:
         node.install_signal_handlers()
-        worker = build(node, settings)
+        worker = build(node)
+        node.announce()
         try:
             node.spin()
         finally:
@@ -35,7 +30,3 @@ def run_service(
             if callable(close):
                 close()
     return 0
-
-
-def main_entry(settings_type: type[S], build: Callable[[Node, S], Any]) -> None:
-    sys.exit(run_service(settings_type, build))

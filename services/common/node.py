@@ -43,7 +43,11 @@ class Output:
         )
 
     def put(self, message: Message) -> None:
-        self._publisher.put(encode(message))
+        self.put_raw(encode(message))
+
+    def put_raw(self, payload: bytes) -> None:
+        """Publish already encoded bytes (a replay)."""
+        self._publisher.put(payload)
         self._node.metrics.count_out(self.key)
 
     @property
@@ -63,7 +67,11 @@ class Node:
         service: str,
         settings: ServiceSettings,
         session: zenoh.Session | None = None,
+        *,
+        announce: bool = True,
     ) -> None:
+        """With ``announce=False`` the liveliness token waits for ``announce()``: declare it
+        once every input and queryable exists, so that 'alive' means 'ready'."""
         self.service = check_chunk(service, "service name")
         self.settings = settings
         self.instance = settings.instance
@@ -74,15 +82,19 @@ class Node:
         self.session = session if session is not None else open_session(settings)
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
-        self._entities: list[Any] = []
-        self._token = self.session.liveliness().declare_token(
-            self.keys.alive(service, self.instance)
-        )
+        self._subscribers: list[Any] = []
+        self._entities: list[Any] = []  # publishers and queryables
+        self._token: Any = None
         self.serve(self.keys.metrics(service, self.instance), lambda _req: self.metrics.snapshot())
-        self.log.info(
-            "node up",
-            extra={"robot": settings.robot, "alive": self.keys.alive(service, self.instance)},
-        )
+        if announce:
+            self.announce()
+
+    def announce(self) -> None:
+        """Declare ``alive/<service>/<instance>``: the node is up and ready."""
+        if self._token is None:
+            alive = self.keys.alive(self.service, self.instance)
+            self._token = self.session.liveliness().declare_token(alive)
+            self.log.info("node up", extra={"robot": self.settings.robot, "alive": alive})
 
     # -- inputs -------------------------------------------------------------------------------
 
@@ -139,10 +151,10 @@ class Node:
                 self._handle(name, handler, message, k, with_key)
 
         if not latest_only:
-            self._entities.append(self.session.declare_subscriber(key, on_sample))
+            self._subscribers.append(self.session.declare_subscriber(key, on_sample))
             return
         subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(1))
-        self._entities.append(subscriber)
+        self._subscribers.append(subscriber)
 
         def pump() -> None:
             while not self._stop.is_set():
@@ -274,22 +286,25 @@ class Node:
         self._stop.wait(timeout)
 
     def close(self) -> None:
+        """Stop: inputs first (which also ends latest-only pumps), then the node's threads, then
+        outputs, queryables and the liveliness token, then the session."""
         self.stop()
-        for entity in reversed(self._entities):
+        self._undeclare(self._subscribers)
+        for thread in self._threads:
+            thread.join(timeout=5.0)
+        self._undeclare(self._entities)
+        self._undeclare([self._token] if self._token is not None else [])
+        if self._owns_session:
+            self.session.close()
+        self.log.info("node down")
+
+    def _undeclare(self, entities: list[Any]) -> None:
+        for entity in reversed(entities):
             try:
                 entity.undeclare()
             except Exception:
                 self.log.debug("undeclare failed", exc_info=True)
-        self._entities.clear()
-        try:
-            self._token.undeclare()
-        except Exception:
-            self.log.debug("token undeclare failed", exc_info=True)
-        for thread in self._threads:
-            thread.join(timeout=2.0)
-        if self._owns_session:
-            self.session.close()
-        self.log.info("node down")
+        entities.clear()
 
     def __enter__(self) -> Node:
         return self
