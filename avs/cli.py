@@ -6,10 +6,10 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from avs.commands import echo, run, schema, up
+from avs.commands import echo, record, run, schema, sim, up
 from services.common.log import setup_logging
 
-COMMANDS = (run, up, echo, schema)
+COMMANDS = (run, up, sim, echo, record, schema)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -31,6 +31,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> None:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["sim"]:  # everything after 'sim' belongs to the sim's own parser
+        setup_logging("avs", "sim")
+        sys.exit(sim.run(argv[1:]))
     args = build_parser().parse_args(argv)
     setup_logging("avs", args.command, args.log_level)
     try:

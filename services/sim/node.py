@@ -1,0 +1,366 @@
+"""The sim's node: commands in, sensor streams out, control and ground truth on queryables.
+
+Threads: the physics loop (realtime mode) steps the world on the wall clock and publishes IMU,
+joint and base states at their rates; the render worker owns the OpenGL context and renders the
+cameras, periodically in realtime mode and on request (``render``, segmentation) in both modes.
+One lock guards the world; rendering holds it only to copy the scene.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any
+
+import numpy as np
+
+from schemas import (
+    BaseGoal,
+    BasePose,
+    BaseVelocity,
+    GroundTruth,
+    GroundTruthObject,
+    GroundTruthQuery,
+    HeadCommand,
+    ImuSample,
+    JointState,
+    RgbdFrame,
+    SimControl,
+    SimStatus,
+)
+from services.common.node import Node
+from services.sim import ground_truth, noise
+from services.sim.config import SimSettings
+from services.sim.render import CameraRenderer, intrinsics
+from services.sim.robots import ROBOTS
+from services.sim.world import World
+
+log = logging.getLogger("avs.sim")
+
+
+class RenderWorker:
+    """The one thread that renders. Jobs are callables taking the renderer."""
+
+    def __init__(self, sim: SimNode) -> None:
+        self.sim = sim
+        self.jobs: queue.Queue[tuple[Callable[[CameraRenderer], Any], Future]] = queue.Queue()
+        self.renderer: CameraRenderer | None = None
+        self.periodic = not sim.settings.lockstep and sim.settings.fps > 0
+
+    def submit(self, job: Callable[[CameraRenderer], Any], timeout: float = 30.0) -> Any:
+        future: Future = Future()
+        self.jobs.put((job, future))
+        return future.result(timeout)
+
+    def _make_renderer(self) -> CameraRenderer:
+        s = self.sim.settings
+        return CameraRenderer(self.sim.world.model, s.width, s.height, shadows=s.shadows)
+
+    def run(self) -> None:
+        node = self.sim.node
+        self.renderer = self._make_renderer()
+        period = 1.0 / self.sim.settings.fps if self.periodic else None
+        next_frame = time.monotonic()
+        while not node.stopping:
+            timeout = max(0.0, next_frame - time.monotonic()) if period else 0.2
+            try:
+                job, future = self.jobs.get(timeout=timeout)
+            except queue.Empty:
+                if period and not self.sim.paused:
+                    self.sim.publish_frames(self.renderer)
+                    next_frame = max(next_frame + period, time.monotonic() - period)
+                continue
+            try:
+                if self.renderer.model is not self.sim.world.model:  # after a reset
+                    self.renderer.close()
+                    self.renderer = self._make_renderer()
+                future.set_result(job(self.renderer))
+            except Exception as e:
+                future.set_exception(e)
+        self.renderer.close()
+
+
+class SimNode:
+    def __init__(self, node: Node, settings: SimSettings, world: World) -> None:
+        self.node, self.settings, self.world = node, settings, world
+        self.robot = world.robot
+        self.lock = threading.RLock()
+        self.paused = False
+        self.slips = 0
+        self.rng = np.random.default_rng(settings.seed)
+        self.cameras = settings.cameras or list(self.robot.default_cameras)
+        for c in self.cameras:
+            self.robot.camera(c)  # raises on an unknown camera
+        k = node.keys
+        self.out_frames = {c: node.publisher(k.rgbd(c)) for c in self.cameras}
+        self.out_imu = node.publisher(k.imu())
+        self.out_joints = node.publisher(k.joints())
+        self.out_base = node.publisher(k.base_state())
+        self.seq: dict[str, int] = {}
+        self._gt_cache: tuple[np.ndarray, list, list] | None = None
+        node.subscribe(k.cmd_base(), (BaseGoal, BaseVelocity), self.on_cmd_base)
+        node.subscribe(k.cmd_head(), HeadCommand, self.on_cmd_head)
+        node.serve(k.sim_control(), self.on_control, SimControl)
+        node.serve(k.ground_truth(), self.on_ground_truth, GroundTruthQuery)
+        self.worker = RenderWorker(self)
+        node._start_thread(self.worker.run, "sim:render")
+        if not settings.lockstep:
+            node._start_thread(self.physics_loop, "sim:physics")
+        log.info(
+            "simulating",
+            extra={
+                "scene": world.info.name,
+                "robot": self.robot.name,
+                "lockstep": settings.lockstep,
+                "cameras": self.cameras,
+            },
+        )
+
+    def _next_seq(self, stream: str) -> int:
+        self.seq[stream] = self.seq.get(stream, -1) + 1
+        return self.seq[stream]
+
+    # -- physics ------------------------------------------------------------------------------
+
+    def _every(self, rate: float) -> int:
+        return max(1, round(1.0 / (rate * self.world.timestep)))
+
+    def advance(self, n: int) -> None:
+        """n physics steps, publishing IMU and states when due (call with the lock held)."""
+        w = self.world
+        imu_every, state_every = (
+            self._every(self.settings.imu_rate),
+            self._every(self.settings.state_rate),
+        )
+        for _ in range(n):
+            w.step()
+            if w.steps % imu_every == 0:
+                self.publish_imu()
+            if w.steps % state_every == 0:
+                self.publish_state()
+
+    def physics_loop(self) -> None:
+        """Keep sim time on the wall clock (times --speed); slip rather than burst when behind."""
+        speed = self.settings.speed
+        wall0, sim0, world = time.monotonic(), self.world.time, self.world
+        while not self.node.stopping:
+            w = self.world
+            if self.paused or w is not world:  # paused, or reset to a new world
+                wall0, sim0, world = time.monotonic(), w.time, w
+                if self.paused:
+                    time.sleep(0.01)
+                continue
+            target = sim0 + (time.monotonic() - wall0) * speed
+            due = int((target - w.time) / w.timestep)
+            if due > 100:  # more than 0.1 s behind: do not try to catch up, slip the clock
+                self.slips += 1
+                self.node.metrics.gauge("physics_slips", self.slips)
+                wall0, sim0 = time.monotonic(), w.time
+                due = 1
+            if due > 0:
+                with self.lock:
+                    self.advance(due)
+            else:
+                time.sleep(w.timestep / speed)
+
+    # -- publishing ---------------------------------------------------------------------------
+
+    def publish_imu(self) -> None:
+        gyro, acc, quat = self.world.imu()
+        self.out_imu.put(
+            ImuSample(
+                seq=self._next_seq("imu"),
+                stamp=self.world.time,
+                angular_velocity=gyro,
+                linear_acceleration=acc,
+                orientation=quat,
+            )
+        )
+
+    def publish_state(self) -> None:
+        w = self.world
+        names, q, qd = w.joint_state()
+        self.out_joints.put(
+            JointState(
+                seq=self._next_seq("joints"), stamp=w.time, names=names, position=q, velocity=qd
+            )
+        )
+        x, y, yaw, vx, vy, vyaw = w.base_pose()
+        self.out_base.put(
+            BasePose(
+                seq=self._next_seq("base"),
+                stamp=w.time,
+                x=x,
+                y=y,
+                yaw=yaw,
+                v_x=vx,
+                v_y=vy,
+                v_yaw=vyaw,
+                goal_id=w.base.goal_id,
+                goal_status=w.base.status,
+            )
+        )
+
+    def frame(self, renderer: CameraRenderer, camera: str) -> RgbdFrame:
+        """Render one camera at the current state (render thread only)."""
+        info = self.robot.camera(camera)
+        cid = self.world.cameras[camera]
+        with self.lock:
+            renderer.snapshot(self.world.data, cid)
+            T = self.world.T_world_camera(camera)
+            stamp = self.world.time
+        rgb, depth = renderer.render(depth=info.depth_range is not None)
+        K = intrinsics(self.world.model, cid, renderer.width, renderer.height)
+        dmin = dmax = 0.0
+        if depth is not None:
+            dmin, dmax = info.depth_range
+            depth = np.where((depth >= dmin) & (depth <= dmax), depth, 0.0).astype(np.float32)
+            if self.settings.noise:
+                depth = noise.structured_light(depth, self.rng, K.fx)
+        return RgbdFrame(
+            seq=self._next_seq(f"rgbd/{camera}"),
+            stamp=stamp,
+            camera=camera,
+            intrinsics=K,
+            rgb=rgb,
+            depth=depth,
+            T_world_camera=T,
+            depth_min=dmin,
+            depth_max=dmax,
+        )
+
+    def publish_frames(self, renderer: CameraRenderer) -> int:
+        for camera in self.cameras:
+            self.out_frames[camera].put(self.frame(renderer, camera))
+        return len(self.cameras)
+
+    # -- inputs -------------------------------------------------------------------------------
+
+    def on_cmd_base(self, cmd: BaseGoal | BaseVelocity) -> None:
+        with self.lock:
+            if isinstance(cmd, BaseGoal):
+                self.world.set_base_goal(cmd.x, cmd.y, cmd.yaw, cmd.path, cmd.goal_id)
+            else:
+                self.world.set_base_velocity(cmd.v_x, cmd.v_y, cmd.v_yaw, cmd.timeout)
+
+    def on_cmd_head(self, cmd: HeadCommand) -> None:
+        with self.lock:
+            unknown = self.world.command_joints(cmd.names, cmd.mode, cmd.values)
+        if unknown and self.node.metrics.drop("unknown_joint"):
+            log.warning(
+                "ignoring commands for unknown joints %s (known: %s)",
+                unknown,
+                self.world.joint_names,
+            )
+
+    # -- queryables ---------------------------------------------------------------------------
+
+    def status(self, ok: bool = True, error: str = "") -> SimStatus:
+        return SimStatus(
+            ok=ok,
+            error=error,
+            mode="lockstep" if self.settings.lockstep else "realtime",
+            scene=self.world.info.name,
+            robot=self.robot.name,
+            sim_time=self.world.time,
+            steps=self.world.steps,
+            paused=self.paused,
+        )
+
+    def on_control(self, request: SimControl | None) -> SimStatus:
+        if request is None or request.op == "status":
+            return self.status()
+        op = request.op
+        if op == "reset":
+            robot = request.robot or self.robot.name
+            if robot != self.robot.name:
+                return self.status(
+                    False, f"this sim runs {self.robot.name}; start another with --robot {robot}"
+                )
+            scene = request.scene or str(self.world.info.path)
+            world = World(scene, ROBOTS[robot], timestep=self.settings.timestep)
+            with self.lock:
+                self.world = world
+                self.rng = np.random.default_rng(
+                    request.seed if request.seed is not None else self.settings.seed
+                )
+                self.seq.clear()
+                self._gt_cache = None
+            return self.status()
+        if op == "step":
+            with self.lock:
+                self.advance(request.n)
+            return self.status()
+        if op == "render":
+            self.worker.submit(self.publish_frames)
+            return self.status()
+        if op in ("pause", "resume"):
+            self.paused = op == "pause"
+            return self.status()
+        if op == "set_disturbance":
+            with self.lock:
+                amplitude = request.amplitude
+                if self.world.is_hinge(request.joint):  # deg/s on the wire for hinges
+                    amplitude = math.radians(amplitude)
+                self.world.set_disturbance(request.joint, amplitude, request.frequency)
+            return self.status()
+        return self.status(False, f"unknown op {op}")
+
+    def _support(self) -> tuple[list, list]:
+        """The support graph, recomputed only when an object has moved by more than 1 cm."""
+        w = self.world
+        with self.lock:
+            poses = np.array([w.data.xpos[w.model.body(n).id] for n in w.info.objects])
+            data = copy.copy(w.data)
+        cached = self._gt_cache
+        if cached is not None and np.abs(poses - cached[0]).max(initial=0.0) < 0.01:
+            return cached[1], cached[2]
+        edges, closure = ground_truth.support_graph(w.model, data, w.info)
+        self._gt_cache = (poses, edges, closure)
+        return edges, closure
+
+    def on_ground_truth(self, request: GroundTruthQuery | None) -> GroundTruth:
+        request = request or GroundTruthQuery()
+        camera = request.camera or self.cameras[0]
+        w = self.world
+        with self.lock:
+            objs = ground_truth.objects(w)
+            stamp = w.time
+        edges, closure = self._support() if request.support else ([], [])
+        segmentation, labels = None, []
+        if request.segmentation:
+            labels, lookup = ground_truth.segmentation_labels(w)
+
+            def segment(renderer: CameraRenderer) -> np.ndarray:
+                with self.lock:
+                    ids = renderer.segmentation(w.data, w.cameras[camera])
+                return np.where(ids >= 0, lookup[np.maximum(ids, 0)], -1).astype(np.int32)
+
+            segmentation = self.worker.submit(segment)
+        return GroundTruth(
+            stamp=stamp,
+            scene=w.info.name,
+            robot=self.robot.name,
+            objects=[
+                GroundTruthObject(
+                    name=o.name, kind=o.kind, pose=o.pose, size=o.size, static=o.static
+                )
+                for o in objs
+            ],
+            support_edges=edges,
+            support_closure=closure,
+            camera=camera if request.segmentation else "",
+            segmentation=segmentation,
+            labels=labels,
+        )
+
+    def close(self) -> None:
+        with contextlib.suppress(Exception):
+            self.node.stop()

@@ -1,0 +1,75 @@
+"""Replay: the second implementation of the sensor contract. It puts the recorded payloads back
+on their keys with their original timing (scaled by --speed), so a consumer cannot tell it from
+the sim. It answers sim/control with its status and stops the node at the end."""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from schemas import SimControl, SimStatus
+from services.common.node import Node, Output
+from services.common.recording import Record, read_recording
+from services.sim.config import SimSettings
+
+log = logging.getLogger("avs.sim")
+
+
+def open_replay(path: Path) -> tuple[dict, Iterator[Record]]:
+    if not path.is_file():
+        raise ValueError(f"recording {path}: no such file")
+    return read_recording(path)
+
+
+class ReplayNode:
+    def __init__(
+        self, node: Node, settings: SimSettings, recording: tuple[dict, Iterator[Record]]
+    ) -> None:
+        self.node, self.settings = node, settings
+        self.header, self.records = recording
+        self.outputs: dict[str, Output] = {}
+        self.played = 0
+        self.t = 0.0
+        node.serve(node.keys.sim_control(), self.on_control, SimControl)
+        node._start_thread(self.play, "sim:replay")
+        log.info("replaying", extra={"file": str(settings.replay), "keys": self.header["keys"]})
+
+    def _output(self, key: str) -> Output:
+        if key not in self.outputs:
+            self.outputs[key] = self.node.publisher(key)
+        return self.outputs[key]
+
+    def play(self) -> None:
+        first = next(self.records, None)
+        if first is not None:  # give subscribers a moment to match the first key
+            out = self._output(first.key)
+            deadline = time.monotonic() + self.settings.replay_wait
+            while not out.matched and time.monotonic() < deadline and not self.node.stopping:
+                time.sleep(0.01)
+        start = time.monotonic() - (first.t if first else 0.0) / self.settings.speed
+        for record in itertools.chain([first] if first else [], self.records):
+            if self.node.stopping:
+                return
+            delay = start + record.t / self.settings.speed - time.monotonic()
+            if delay > 0 and self.node._stop.wait(delay):
+                return
+            self._output(record.key).put_raw(record.payload)
+            self.played += 1
+            self.t = record.t
+        log.info("replay finished", extra={"records": self.played})
+        self.node.stop()
+
+    def on_control(self, request: SimControl | None) -> SimStatus:
+        ok = request is None or request.op == "status"
+        return SimStatus(
+            ok=ok,
+            error="" if ok else "a replay only answers status",
+            mode="replay",
+            scene=str(self.settings.replay),
+            robot=self.settings.robot,
+            sim_time=self.t,
+            steps=self.played,
+        )

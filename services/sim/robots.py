@@ -1,0 +1,91 @@
+"""What the sim needs to know about each robot beyond its MJCF: cameras, limits, home pose."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+ROBOTS_DIR = Path(__file__).parent / "robots"
+
+#: Joint names of the planar base, in the order (x, y, yaw).
+BASE_JOINTS = ("base_x", "base_y", "base_yaw")
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    """A camera of the robot. ``depth_range`` is (min, max) metres for RGB-D cameras, None for
+    colour-only ones."""
+
+    name: str
+    depth_range: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class RobotInfo:
+    name: str
+    cameras: tuple[CameraInfo, ...]
+    #: the camera published by default
+    default_cameras: tuple[str, ...]
+    #: maximum platform speeds (m/s, rad/s) and accelerations (m/s², rad/s²)
+    vel_lin: float
+    vel_rot: float
+    acc_lin: float
+    acc_rot: float
+    footprint_radius: float
+    #: maximum joint speeds for position commands (rad/s or m/s)
+    joint_speed: dict[str, float] = field(default_factory=dict)
+    #: joint positions at start
+    home: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def mjcf(self) -> Path:
+        return ROBOTS_DIR / f"{self.name}.xml"
+
+    def camera(self, name: str) -> CameraInfo:
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        raise KeyError(f"{self.name} has no camera {name!r} (has {[c.name for c in self.cameras]})")
+
+
+ARMAR6 = RobotInfo(
+    name="armar6",
+    cameras=(CameraInfo("head_rgbd", depth_range=(0.35, 8.0)),),
+    default_cameras=("head_rgbd",),
+    vel_lin=0.5,
+    vel_rot=1.0,
+    acc_lin=0.5,
+    acc_rot=1.0,
+    footprint_radius=0.45,
+    joint_speed={"torso_lift": 0.1, "neck_yaw": 2.0, "neck_pitch": 2.0},
+    home={"torso_lift": 0.2, "neck_yaw": 0.0, "neck_pitch": 0.35},
+)
+
+ARMAR3 = RobotInfo(
+    name="armar3",
+    cameras=(
+        CameraInfo("left_peripheral"),
+        CameraInfo("left_foveal"),
+        CameraInfo("right_peripheral"),
+        CameraInfo("right_foveal"),
+    ),
+    default_cameras=("left_peripheral",),
+    vel_lin=0.5,
+    vel_rot=1.0,
+    acc_lin=0.5,
+    acc_rot=1.0,
+    footprint_radius=0.4,
+    joint_speed={
+        "hip_yaw": 1.0,
+        "neck_lower_pitch": 2.0,
+        "neck_roll": 2.0,
+        "neck_yaw": 2.0,
+        "neck_upper_pitch": 2.0,
+        "eye_tilt": 5.0,
+        "eye_pan_left": 5.0,
+        "eye_pan_right": 5.0,
+    },
+    home={"neck_lower_pitch": 0.2, "neck_upper_pitch": 0.15},
+)
+
+ROBOTS = {r.name: r for r in (ARMAR6, ARMAR3)}

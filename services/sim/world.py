@@ -1,0 +1,322 @@
+"""The simulated robot in its scene: physics, the base and joint controllers, sensor readouts.
+
+Pure core: MuJoCo and numpy, no transport. ``World.step()`` advances one physics step of
+``timestep`` seconds after applying the commands:
+
+- the platform follows a ``BaseGoal`` (straight or along waypoints) or a ``BaseVelocity``, never
+  faster than vel_lin / vel_rot and never accelerating harder than acc_lin / acc_rot;
+- every other joint follows a reference that position commands move at the joint's speed limit
+  and velocity commands integrate, clamped to the joint's range, with the reference velocity
+  fed forward (a position and a velocity servo per joint in the MJCF);
+- a disturbance drives one joint with q̇ = A·cos(2πft) (thesis 5.4).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from services.sim.robots import BASE_JOINTS, RobotInfo
+from services.sim.scene import (
+    ROBOT_PREFIX,
+    check_start_overlaps,
+    load_world_model,
+    robot_joint_names,
+)
+
+#: seconds the scene settles at reset before time starts
+SETTLE_S = 0.3
+#: a goal is reached within these tolerances (m, rad)
+GOAL_TOLERANCE = (0.005, math.radians(0.3))
+#: platform position gain when approaching a goal (1/s)
+BASE_GAIN = 3.0
+
+
+def wrap(angle: float) -> float:
+    """Angle in (-π, π] (thesis Eq. 4.7)."""
+    return math.atan2(math.sin(angle), math.cos(angle))
+
+
+@dataclass
+class JointServo:
+    name: str
+    qpos: int
+    dof: int
+    lower: float
+    upper: float
+    pos_act: int
+    vel_act: int
+    speed: float
+    q_ref: float = 0.0
+    v_ref: float = 0.0
+    target: float | None = None  # position command being moved to
+    velocity: float = 0.0  # velocity command
+    velocity_until: float = -1.0
+
+    def clamp(self, q: float) -> float:
+        return min(max(q, self.lower), self.upper)
+
+
+@dataclass
+class Disturbance:
+    joint: str
+    amplitude: float  # rad/s (hinge) or m/s (slide)
+    frequency: float  # Hz
+    start: float
+
+
+@dataclass
+class BaseCommand:
+    goal_id: str = ""
+    waypoints: list[tuple[float, float, float]] = field(default_factory=list)
+    index: int = 0
+    velocity: tuple[float, float, float] | None = None  # base frame
+    velocity_until: float = -1.0
+    status: str = "idle"
+
+
+class World:
+    """One robot in one scene. Not thread-safe: the caller serialises access."""
+
+    def __init__(
+        self,
+        scene: str | Path,
+        robot: RobotInfo,
+        *,
+        timestep: float = 0.001,
+        head_velocity_timeout: float = 0.1,
+    ) -> None:
+        self.robot = robot
+        self.model, self.info = load_world_model(scene, robot, timestep=timestep)
+        self.data = mujoco.MjData(self.model)
+        self.timestep = timestep
+        self.head_velocity_timeout = head_velocity_timeout
+        m = self.model
+        self._base_qpos = [m.joint(ROBOT_PREFIX + n).qposadr[0] for n in BASE_JOINTS]
+        self._base_dof = [m.joint(ROBOT_PREFIX + n).dofadr[0] for n in BASE_JOINTS]
+        self._base_act = [m.actuator(ROBOT_PREFIX + n).id for n in BASE_JOINTS]
+        self.joint_names = [n for n in robot_joint_names(m) if n not in BASE_JOINTS]
+        self.servos: dict[str, JointServo] = {}
+        for n in self.joint_names:
+            j = m.joint(ROBOT_PREFIX + n)
+            lower, upper = j.range if j.limited[0] else (-math.inf, math.inf)
+            self.servos[n] = JointServo(
+                name=n,
+                qpos=int(j.qposadr[0]),
+                dof=int(j.dofadr[0]),
+                lower=float(lower),
+                upper=float(upper),
+                pos_act=m.actuator(ROBOT_PREFIX + n).id,
+                vel_act=m.actuator(ROBOT_PREFIX + n + "_v").id,
+                speed=robot.joint_speed.get(n, 1.0),
+            )
+        sensor = {
+            name: m.sensor(ROBOT_PREFIX + name) for name in ("imu_gyro", "imu_accel", "imu_quat")
+        }
+        self._imu = {k: (int(s.adr[0]), int(s.dim[0])) for k, s in sensor.items()}
+        self._imu_site = m.site(ROBOT_PREFIX + "imu").id
+        self._head_body = int(m.site_bodyid[self._imu_site])
+        self.cameras = {c.name: m.camera(ROBOT_PREFIX + c.name).id for c in robot.cameras}
+        self.base = BaseCommand()
+        self.disturbance: Disturbance | None = None
+        self._v_cmd = np.zeros(3)  # world vx, vy, yaw rate being commanded
+        self._hold = np.zeros(3)
+        self.steps = 0
+        self.reset()
+
+    # -- life cycle ---------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Robot at robot_start in its home pose, objects settled, time zero."""
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        x, y, yaw = self.info.robot_start
+        for adr, v in zip(self._base_qpos, (x, y, yaw), strict=True):
+            d.qpos[adr] = v
+        for s in self.servos.values():
+            s.q_ref = s.clamp(self.robot.home.get(s.name, 0.0))
+            s.v_ref, s.target, s.velocity, s.velocity_until = 0.0, None, 0.0, -1.0
+            d.qpos[s.qpos] = s.q_ref
+        check_start_overlaps(self.info.path, m, d)
+        self.base = BaseCommand()
+        self.disturbance = None
+        self._v_cmd[:] = 0.0
+        self._hold[:] = (x, y, yaw)
+        for _ in range(int(SETTLE_S / self.timestep)):
+            self.step()
+        d.time = 0.0
+        self.steps = 0
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    def step(self, n: int = 1) -> None:
+        for _ in range(n):
+            self._control()
+            mujoco.mj_step(self.model, self.data)
+            self.steps += 1
+
+    # -- commands -----------------------------------------------------------------------------
+
+    def set_base_goal(
+        self, x: float, y: float, yaw: float, path: np.ndarray | None = None, goal_id: str = ""
+    ) -> None:
+        waypoints = [tuple(map(float, p)) for p in (path if path is not None else [])]
+        self.base = BaseCommand(
+            goal_id=goal_id, waypoints=[*waypoints, (x, y, yaw)], status="moving"
+        )
+
+    def set_base_velocity(self, v_x: float, v_y: float, v_yaw: float, timeout: float) -> None:
+        """Velocity in the base frame; it stops after ``timeout`` seconds without a newer one."""
+        self.base = BaseCommand(
+            velocity=(v_x, v_y, v_yaw), velocity_until=self.time + timeout, status="moving"
+        )
+
+    def command_joints(self, names: list[str], mode: str, values: np.ndarray) -> list[str]:
+        """Position or velocity commands for named joints; returns the names it did not know."""
+        unknown = []
+        for name, value in zip(names, values, strict=True):
+            s = self.servos.get(name)
+            if s is None:
+                unknown.append(name)
+                continue
+            if mode == "position":
+                s.target, s.velocity, s.velocity_until = s.clamp(float(value)), 0.0, -1.0
+            else:
+                s.target = None
+                s.velocity = float(value)
+                s.velocity_until = self.time + self.head_velocity_timeout
+        return unknown
+
+    def is_hinge(self, joint: str) -> bool:
+        if joint not in self.servos:
+            raise KeyError(f"{self.robot.name} has no joint {joint!r} (has {self.joint_names})")
+        j = self.model.joint(ROBOT_PREFIX + joint).id
+        return self.model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE
+
+    def set_disturbance(self, joint: str, amplitude: float, frequency: float) -> None:
+        """q̇ = amplitude·cos(2π·frequency·t) on ``joint`` from now; amplitude 0 stops it."""
+        if joint not in self.servos:
+            raise KeyError(f"{self.robot.name} has no joint {joint!r} (has {self.joint_names})")
+        self.disturbance = (
+            Disturbance(joint, amplitude, frequency, self.time) if amplitude != 0 else None
+        )
+        self.servos[joint].target = None
+
+    # -- control ------------------------------------------------------------------------------
+
+    def _control(self) -> None:
+        dt, t = self.timestep, self.time
+        for s in self.servos.values():
+            q_prev = s.q_ref
+            dist = self.disturbance
+            if dist is not None and dist.joint == s.name:
+                v = dist.amplitude * math.cos(2 * math.pi * dist.frequency * (t - dist.start))
+                s.q_ref = s.clamp(s.q_ref + v * dt)
+            elif s.target is not None:
+                s.q_ref += float(np.clip(s.target - s.q_ref, -s.speed * dt, s.speed * dt))
+            elif t < s.velocity_until:
+                s.q_ref = s.clamp(s.q_ref + s.velocity * dt)
+            s.v_ref = (s.q_ref - q_prev) / dt
+            self.data.ctrl[s.pos_act] = s.q_ref
+            self.data.ctrl[s.vel_act] = s.v_ref
+        self._base_control()
+
+    def _base_control(self) -> None:
+        r, b, dt = self.robot, self.base, self.timestep
+        x, y, yaw = (float(self.data.qpos[a]) for a in self._base_qpos)
+        if b.velocity is not None:
+            if self.time < b.velocity_until:
+                vx, vy, w = b.velocity
+                c, s = math.cos(yaw), math.sin(yaw)
+                desired = np.array([c * vx - s * vy, s * vx + c * vy, w])
+            else:  # timed out: brake at the acceleration limits, then hold where it stopped
+                desired = np.zeros(3)
+                if not self._v_cmd.any():
+                    self.base = BaseCommand(status="idle")
+                    self._hold[:] = (x, y, yaw)
+        else:
+            if b.waypoints:
+                tx, ty, tyaw = b.waypoints[b.index]
+                last = b.index == len(b.waypoints) - 1
+            else:
+                (tx, ty, tyaw), last = self._hold, True
+            ex, ey, eyaw = tx - x, ty - y, wrap(tyaw - yaw)
+            dist = math.hypot(ex, ey)
+            if not last and dist < 0.1:
+                b.index += 1
+                return self._base_control()
+            speed = (
+                r.vel_lin
+                if not last
+                else min(r.vel_lin, BASE_GAIN * dist, 0.95 * math.sqrt(2 * r.acc_lin * dist))
+            )
+            turn = min(
+                r.vel_rot, BASE_GAIN * abs(eyaw), 0.95 * math.sqrt(2 * r.acc_rot * abs(eyaw))
+            )
+            desired = np.array(
+                [
+                    speed * ex / dist if dist > 1e-9 else 0.0,
+                    speed * ey / dist if dist > 1e-9 else 0.0,
+                    math.copysign(turn, eyaw),
+                ]
+            )
+            if b.waypoints and last and dist < GOAL_TOLERANCE[0] and abs(eyaw) < GOAL_TOLERANCE[1]:
+                self.base = BaseCommand(goal_id=b.goal_id, status="reached")
+                self._hold[:] = (tx, ty, tyaw)
+        # never faster than the limits, never accelerating harder than the limits
+        lin = math.hypot(desired[0], desired[1])
+        if lin > r.vel_lin:
+            desired[:2] *= r.vel_lin / lin
+        desired[2] = float(np.clip(desired[2], -r.vel_rot, r.vel_rot))
+        dv = desired - self._v_cmd
+        dv_lin = math.hypot(dv[0], dv[1])
+        if dv_lin > r.acc_lin * dt:
+            dv[:2] *= r.acc_lin * dt / dv_lin
+        dv[2] = float(np.clip(dv[2], -r.acc_rot * dt, r.acc_rot * dt))
+        self._v_cmd += dv
+        for act, v in zip(self._base_act, self._v_cmd, strict=True):
+            self.data.ctrl[act] = v
+
+    # -- readouts -----------------------------------------------------------------------------
+
+    def imu(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(gyro rad/s, accelerometer m/s² specific force, orientation wxyz) of the head IMU."""
+        sd = self.data.sensordata
+        out = []
+        for key in ("imu_gyro", "imu_accel", "imu_quat"):
+            adr, dim = self._imu[key]
+            out.append(np.array(sd[adr : adr + dim], dtype=np.float64))
+        return out[0], out[1], out[2]
+
+    def head_angular_velocity(self) -> np.ndarray:
+        """Angular velocity of the IMU's body in the IMU frame (the truth the gyro measures)."""
+        v = np.zeros(6)
+        mujoco.mj_objectVelocity(
+            self.model, self.data, mujoco.mjtObj.mjOBJ_SITE, self._imu_site, v, 1
+        )
+        return v[:3]
+
+    def joint_state(self) -> tuple[list[str], np.ndarray, np.ndarray]:
+        q = np.array([self.data.qpos[s.qpos] for s in self.servos.values()])
+        qd = np.array([self.data.qvel[s.dof] for s in self.servos.values()])
+        return list(self.servos), q, qd
+
+    def base_pose(self) -> tuple[float, float, float, float, float, float]:
+        """x, y, yaw (wrapped) and the world-frame velocities vx, vy, yaw rate."""
+        x, y, yaw = (float(self.data.qpos[a]) for a in self._base_qpos)
+        vx, vy, w = (float(self.data.qvel[a]) for a in self._base_dof)
+        return x, y, wrap(yaw), vx, vy, w
+
+    def T_world_camera(self, camera: str) -> np.ndarray:
+        """Pose of the camera's optical frame (x right, y down, z forward) in the world."""
+        cid = self.cameras[camera]
+        T = np.eye(4)
+        T[:3, :3] = self.data.cam_xmat[cid].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
+        T[:3, 3] = self.data.cam_xpos[cid]
+        return T
