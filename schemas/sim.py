@@ -9,7 +9,7 @@ from pydantic import Field, model_validator
 
 from schemas.arrays import Array
 from schemas.base import Message, Model, Stamped
-from schemas.types import Pose
+from schemas.types import Pose, Vec3
 
 
 class GroundTruthObject(Model):
@@ -37,6 +37,8 @@ class GroundTruth(Stamped):
         None, description="index into labels per pixel, -1 where no scene body is seen"
     )
     labels: list[str] = Field(default_factory=list)
+    roi_min: Vec3 | None = Field(None, description="the scene's region of interest, if any")
+    roi_max: Vec3 | None = None
 
 
 class GroundTruthQuery(Message):
