@@ -26,7 +26,6 @@ from schemas import (
     BasePose,
     BaseVelocity,
     GroundTruth,
-    GroundTruthObject,
     GroundTruthQuery,
     HeadCommand,
     ImuSample,
@@ -36,9 +35,9 @@ from schemas import (
     SimStatus,
 )
 from services.common.node import Node
-from services.sim import ground_truth, noise
+from services.sim import capture, ground_truth
 from services.sim.config import SimSettings
-from services.sim.render import CameraRenderer, intrinsics
+from services.sim.render import CameraRenderer
 from services.sim.robots import ROBOTS
 from services.sim.world import World
 
@@ -210,30 +209,11 @@ class SimNode:
 
     def frame(self, renderer: CameraRenderer, camera: str) -> RgbdFrame:
         """Render one camera at the current state (render thread only)."""
-        info = self.robot.camera(camera)
-        cid = self.world.cameras[camera]
         with self.lock:
-            renderer.snapshot(self.world.data, cid)
-            T = self.world.T_world_camera(camera)
-            stamp = self.world.time
-        rgb, depth = renderer.render(depth=info.depth_range is not None)
-        K = intrinsics(self.world.model, cid, renderer.width, renderer.height)
-        dmin = dmax = 0.0
-        if depth is not None:
-            dmin, dmax = info.depth_range
-            depth = np.where((depth >= dmin) & (depth <= dmax), depth, 0.0).astype(np.float32)
-            if self.settings.noise:
-                depth = noise.structured_light(depth, self.rng, K.fx)
-        return RgbdFrame(
-            seq=self._next_seq(f"rgbd/{camera}"),
-            stamp=stamp,
-            camera=camera,
-            intrinsics=K,
-            rgb=rgb,
-            depth=depth,
-            T_world_camera=T,
-            depth_min=dmin,
-            depth_max=dmax,
+            T, stamp = capture.snapshot(self.world, renderer, camera)
+        rng = self.rng if self.settings.noise else None
+        return capture.frame(
+            self.world, renderer, camera, T, stamp, self._next_seq(f"rgbd/{camera}"), rng
         )
 
     def publish_frames(self, renderer: CameraRenderer) -> int:
@@ -329,37 +309,17 @@ class SimNode:
     def on_ground_truth(self, request: GroundTruthQuery | None) -> GroundTruth:
         request = request or GroundTruthQuery()
         camera = request.camera or self.cameras[0]
-        w = self.world
-        with self.lock:
-            objs = ground_truth.objects(w)
-            stamp = w.time
         edges, closure = self._support() if request.support else ([], [])
-        segmentation, labels = None, []
+        labels, seg = [], None
         if request.segmentation:
-            labels, lookup = ground_truth.segmentation_labels(w)
 
-            def segment(renderer: CameraRenderer) -> np.ndarray:
+            def segment(renderer: CameraRenderer):
                 with self.lock:
-                    ids = renderer.segmentation(w.data, w.cameras[camera])
-                return np.where(ids >= 0, lookup[np.maximum(ids, 0)], -1).astype(np.int32)
+                    return capture.segmentation(self.world, renderer, camera)
 
-            segmentation = self.worker.submit(segment)
-        return GroundTruth(
-            stamp=stamp,
-            scene=w.info.name,
-            robot=self.robot.name,
-            objects=[
-                GroundTruthObject(
-                    name=o.name, kind=o.kind, pose=o.pose, size=o.size, static=o.static
-                )
-                for o in objs
-            ],
-            support_edges=edges,
-            support_closure=closure,
-            camera=camera if request.segmentation else "",
-            segmentation=segmentation,
-            labels=labels,
-        )
+            labels, seg = self.worker.submit(segment)
+        with self.lock:
+            return capture.ground_truth_message(self.world, edges, closure, camera, labels, seg)
 
     def close(self) -> None:
         with contextlib.suppress(Exception):

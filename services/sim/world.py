@@ -28,6 +28,8 @@ from services.sim.scene import (
     robot_joint_names,
 )
 
+#: the two joints that aim each robot's main camera: (pan, tilt)
+AIM_JOINTS = {"armar6": ("neck_yaw", "neck_pitch"), "armar3": ("neck_yaw", "neck_upper_pitch")}
 #: seconds the scene settles at reset before time starts
 SETTLE_S = 0.3
 #: a goal is reached within these tolerances (m, rad)
@@ -282,6 +284,38 @@ class World:
         self._v_cmd += dv
         for act, v in zip(self._base_act, self._v_cmd, strict=True):
             self.data.ctrl[act] = v
+
+    # -- placing the robot (tools and tests: a teleport, not a motion) ----------------------
+
+    def place(self, base: tuple[float, float, float] | None = None, **joints: float) -> None:
+        """Put the platform at (x, y, yaw) and joints at positions (clamped), at rest."""
+        d = self.data
+        if base is not None:
+            for adr, v in zip(self._base_qpos, base, strict=True):
+                d.qpos[adr] = v
+            self._hold[:] = base
+            self.base = BaseCommand()
+            self._v_cmd[:] = 0.0
+        for name, value in joints.items():
+            s = self.servos[name]
+            s.q_ref = s.clamp(value)
+            s.target, s.velocity_until = None, -1.0
+            d.qpos[s.qpos] = s.q_ref
+        d.qvel[:] = 0.0
+        mujoco.mj_forward(self.model, d)
+
+    def look_at(self, target: np.ndarray, camera: str | None = None) -> None:
+        """Turn the head so the camera's optical axis passes through ``target`` (world)."""
+        camera = camera or self.robot.default_cameras[0]
+        pan, tilt = AIM_JOINTS[self.robot.name]
+        for _ in range(8):
+            T = self.T_world_camera(camera)
+            t = T[:3, :3].T @ (np.asarray(target) - T[:3, 3])  # optical frame: x right, y down
+            dpan, dtilt = math.atan2(-t[0], t[2]), math.atan2(t[1], math.hypot(t[0], t[2]))
+            if abs(dpan) < 1e-5 and abs(dtilt) < 1e-5:
+                break
+            q = dict(zip(*self.joint_state()[:2], strict=True))
+            self.place(**{pan: q[pan] + dpan, tilt: q[tilt] + dtilt})
 
     # -- readouts -----------------------------------------------------------------------------
 
