@@ -102,10 +102,11 @@ class Node:
         try:
             return decode(payload, expect)
         except CodecError as e:
-            self._dropped(f"{e.kind}", key, str(e))
+            self.drop(f"{e.kind}", key, str(e))
             return None
 
-    def _dropped(self, reason: str, key: str, detail: str) -> None:
+    def drop(self, reason: str, key: str, detail: str) -> None:
+        """Count a dropped input by ``reason``; log the first of each reason."""
         if self.metrics.drop(reason):
             self.log.warning(
                 "dropping message: %s (further drops for this reason are only counted)",
@@ -120,7 +121,7 @@ class Node:
         try:
             handler(message, key) if with_key else handler(message)
         except Exception as e:
-            self._dropped(f"handler_error:{type(e).__name__}", key, f"{name} raised {e!r}")
+            self.drop(f"handler_error:{type(e).__name__}", key, f"{name} raised {e!r}")
             self.log.debug("handler error", exc_info=True)
         finally:
             self.metrics.record(name, time.perf_counter() - t0)
@@ -187,7 +188,7 @@ class Node:
                 try:
                     request = decode(query.payload.to_bytes(), request_type)
                 except CodecError as e:
-                    self._dropped(e.kind, k, str(e))
+                    self.drop(e.kind, k, str(e))
                     query.reply_err(encode(QueryError(error=str(e))))
                     return
             t0 = time.perf_counter()
@@ -199,7 +200,7 @@ class Node:
                     query.reply(reply_key, encode(message))
                     self.metrics.count_out(reply_key)
             except Exception as e:
-                self._dropped(f"handler_error:{type(e).__name__}", k, f"{name} raised {e!r}")
+                self.drop(f"handler_error:{type(e).__name__}", k, f"{name} raised {e!r}")
                 query.reply_err(encode(QueryError(error=f"{type(e).__name__}: {e}")))
             finally:
                 self.metrics.record(name, time.perf_counter() - t0)
@@ -258,7 +259,7 @@ class Node:
                 try:
                     callback()
                 except Exception as e:
-                    self._dropped(f"handler_error:{type(e).__name__}", name, f"{name} raised {e!r}")
+                    self.drop(f"handler_error:{type(e).__name__}", name, f"{name} raised {e!r}")
                 self.metrics.record(name, time.perf_counter() - t0)
                 next_t += period
                 delay = next_t - time.monotonic()

@@ -1,0 +1,68 @@
+"""The frame as an organized point cloud in world coordinates, with smoothed normals.
+
+Working on the image grid (like CAPE / PEAC) keeps every neighbourhood free: neighbours are
+pixels, smoothing is a box filter, clusters are connected components. ``stride`` subsamples
+the image first (2: 640×480 → 320×240).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.perception import kernels
+
+
+@dataclass
+class OrganizedCloud:
+    """Grid-shaped arrays of one frame (h × w after striding)."""
+
+    points: np.ndarray  # (h, w, 3) float32 world coordinates, NaN where invalid
+    normals: np.ndarray  # (h, w, 3) float32 unit normals facing the camera, 0 where unknown
+    valid: np.ndarray  # (h, w) bool: a depth reading inside the range
+    colours: np.ndarray  # (h, w, 3) uint8
+    spacing: np.ndarray  # (h, w) float32: distance between neighbouring grid points, m
+    camera_centre: np.ndarray  # (3,) world position of the optical centre
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.valid.shape
+
+
+def organized_cloud(
+    depth: np.ndarray,
+    rgb: np.ndarray | None,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    T_world_camera: np.ndarray,
+    *,
+    depth_min: float = 0.35,
+    depth_max: float = 3.0,
+    stride: int = 2,
+    smooth: int = 3,
+) -> OrganizedCloud:
+    """Back-project ``depth`` (metres along the optical axis; 0, NaN or out-of-range are
+    masked) into world coordinates, and estimate normals from box-filtered points."""
+    z = np.asarray(depth, dtype=np.float32)[::stride, ::stride]
+    h, w = z.shape
+    valid = np.isfinite(z) & (z >= depth_min) & (z <= depth_max)
+    z = np.where(valid, z, np.float32(0))
+    u = np.arange(0, w * stride, stride, dtype=np.float32)
+    v = np.arange(0, h * stride, stride, dtype=np.float32)
+    x = (u[None, :] - np.float32(cx)) / np.float32(fx) * z
+    y = (v[:, None] - np.float32(cy)) / np.float32(fy) * z
+    R = T_world_camera[:3, :3].astype(np.float32)
+    t = T_world_camera[:3, 3].astype(np.float32)
+    cam = np.stack([x, y, z], axis=-1)
+    points = cam @ R.T + t
+    points[~valid] = np.nan
+    colours = (
+        np.asarray(rgb)[::stride, ::stride] if rgb is not None else np.zeros((h, w, 3), np.uint8)
+    )
+    spacing = (stride * z / np.float32(fx)).astype(np.float32)
+    centre = T_world_camera[:3, 3].astype(np.float32)
+    normals = kernels.normals(points, valid, smooth // 2, centre)
+    return OrganizedCloud(points, normals, valid, colours, spacing, T_world_camera[:3, 3].copy())

@@ -1,0 +1,22 @@
+"""Settings of the perception service (env AVS_PERCEPTION_<FIELD> or --flag)."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+from pydantic import Field
+
+from services.common.config import ServiceSettings
+
+
+class PerceptionSettings(ServiceSettings):
+    """RGB-D frames → geometric primitives, spatial and support graph, affordances."""
+
+    SERVICE: ClassVar[str] = "perception"
+
+    camera: str = Field("head_rgbd", description="camera whose frames to perceive ('*': all)")
+    depth_min: float = Field(0.35, ge=0, description="nearest depth used, m")
+    depth_max: float = Field(3.0, gt=0, description="farthest depth used, m")
+    stride: int = Field(2, ge=1, le=4, description="pixel stride of the organized cloud")
+    max_pixels: int = Field(1280 * 960, gt=0, description="larger frames are dropped")
+    seed: int = Field(0, description="seed of RANSAC")

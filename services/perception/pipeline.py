@@ -1,0 +1,216 @@
+"""The perception pipeline of one frame, stage by stage, with the time of each stage:
+
+cloud → segmentation → primitives (Algorithm 1) → boxes → spatial graph → support graph →
+stability → affordances.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from schemas import (
+    Affordance,
+    BoxModel,
+    CameraIntrinsics,
+    CylinderModel,
+    Obb,
+    PlaneModel,
+    Primitive,
+    RgbdFrame,
+    SceneObservation,
+    SpatialEdge,
+    SphereModel,
+    SupportEdge,
+)
+from services.perception import relations
+from services.perception.affordances import AffordanceOut, Hand, affordances
+from services.perception.cloud import organized_cloud
+from services.perception.primitives import (
+    Extracted,
+    ExtractionConfig,
+    assemble_boxes,
+    extract_segment,
+)
+from services.perception.segmentation import segment
+
+MAX_INLIERS = 2000
+
+
+@dataclass
+class PerceptionConfig:
+    depth_min: float = 0.35
+    depth_max: float = 3.0
+    stride: int = 2
+    smooth: int = 3
+    min_segment: int = 30
+    seed: int = 0
+    extraction: ExtractionConfig = field(default_factory=ExtractionConfig)
+    relations: relations.RelationConfig = field(default_factory=relations.RelationConfig)
+    hand: Hand = field(default_factory=Hand)
+
+
+@dataclass
+class Perceived:
+    primitives: list[Extracted]
+    spatial: list[tuple[int, int]]
+    support: list[tuple[int, int, np.ndarray]]
+    root: int | None
+    unstable: list[int]
+    affordances: list[AffordanceOut]
+    points: int
+    timings_ms: dict[str, float]
+    grid_shape: tuple[int, int] = (0, 0)
+
+
+class Perception:
+    """The pipeline with its configuration; ``perceive`` is a pure function of the frame."""
+
+    def __init__(self, config: PerceptionConfig | None = None) -> None:
+        self.config = config or PerceptionConfig()
+
+    def warm_up(self) -> None:
+        """Run once on a small synthetic frame: loads the compiled kernels before the first
+        real frame arrives."""
+        z = np.full((48, 64), 1.0, np.float32)
+        z[10:30, 20:40] = 0.8
+        K = CameraIntrinsics.from_fov(64, 48, 45.0)
+        self.perceive(z, None, K, np.eye(4))
+
+    def perceive(
+        self,
+        depth: np.ndarray,
+        rgb: np.ndarray | None,
+        intrinsics: CameraIntrinsics,
+        T_world_camera: np.ndarray,
+    ) -> Perceived:
+        c = self.config
+        rng = np.random.default_rng(c.seed)
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal t
+            now = time.perf_counter()
+            timings[stage] = (now - t) * 1e3
+            t = now
+
+        cloud = organized_cloud(
+            depth,
+            rgb,
+            intrinsics.fx,
+            intrinsics.fy,
+            intrinsics.cx,
+            intrinsics.cy,
+            T_world_camera,
+            depth_min=c.depth_min,
+            depth_max=c.depth_max,
+            stride=c.stride,
+            smooth=c.smooth,
+        )
+        lap("cloud")
+        labels, n = segment(cloud, min_size=c.min_segment)
+        lap("segmentation")
+        flat = labels.ravel()
+        order = np.argsort(flat, kind="stable")
+        bounds = np.searchsorted(flat[order], np.arange(n + 1))
+        prims: list[Extracted] = []
+        for s in range(n):
+            prims += extract_segment(cloud, order[bounds[s] : bounds[s + 1]], s, c.extraction, rng)
+        lap("primitives")
+        prims = assemble_boxes(prims, c.extraction)
+        lap("boxes")
+        spatial = relations.spatial_edges(prims, c.relations)
+        lap("spatial_graph")
+        support = relations.support_edges(prims, spatial, c.relations)
+        relations.settle_on_supports(prims, support, c.relations)
+        root = relations.root(prims)
+        ground = relations.grounded(prims, root, c.relations)
+        unstable = relations.unstable(len(prims), ground, support)
+        lap("support_graph")
+        resting = {t for _, t, _ in support}
+        affs = affordances(prims, T_world_camera[:3, 3], resting, c.hand)
+        lap("affordances")
+        timings["total"] = sum(timings.values())
+        return Perceived(
+            prims,
+            spatial,
+            support,
+            root,
+            unstable,
+            affs,
+            int(cloud.valid.sum()),
+            timings,
+            cloud.shape,
+        )
+
+
+def _model(p: Extracted):
+    if p.kind == "plane":
+        return PlaneModel(normal=p.normal, d=p.d)
+    if p.kind == "cylinder":
+        return CylinderModel(center=p.center, axis=p.axis, radius=p.radius, height=p.height)
+    if p.kind == "sphere":
+        return SphereModel(center=p.center, radius=p.radius)
+    return BoxModel(center=p.center, rotation=p.rotation, extent=p.extent)
+
+
+def to_primitive(
+    index: int, p: Extracted, colours: np.ndarray | None, rng: np.random.Generator
+) -> Primitive:
+    points = p.points
+    if len(points) > MAX_INLIERS:
+        points = points[np.sort(rng.choice(len(points), MAX_INLIERS, replace=False))]
+    colour = (
+        colours.reshape(-1, 3)[p.pixels].mean(0).round().astype(np.uint8)
+        if colours is not None
+        else np.zeros(3, np.uint8)
+    )
+    return Primitive(
+        id=index,
+        model=_model(p),
+        obb=Obb(center=p.box.center, rotation=p.box.rotation, extent=p.box.extent),
+        inlier_count=len(p.pixels),
+        inliers=points.astype(np.float32),
+        colour=colour,
+    )
+
+
+def observation(
+    result: Perceived, frame: RgbdFrame, seq: int, worker: str, depth_max: float, stride: int
+) -> SceneObservation:
+    """The SceneObservation message of one perceived frame."""
+    rng = np.random.default_rng(frame.seq)
+    colours = frame.rgb[::stride, ::stride] if frame.rgb is not None else None
+    return SceneObservation(
+        seq=seq,
+        stamp=frame.stamp,
+        camera=frame.camera,
+        frame_seq=frame.seq,
+        frame_stamp=frame.stamp,
+        worker=worker,
+        T_world_camera=frame.T_world_camera,
+        intrinsics=frame.intrinsics,
+        depth_max=depth_max,
+        points=result.points,
+        primitives=[to_primitive(i, p, colours, rng) for i, p in enumerate(result.primitives)],
+        spatial_edges=[SpatialEdge(a=a, b=b) for a, b in result.spatial],
+        support_edges=[
+            SupportEdge(supporter=s, supported=t, contact=c) for s, t, c in result.support
+        ],
+        root_id=result.root,
+        unstable_ids=result.unstable,
+        affordances=[
+            Affordance(
+                kind=a.kind,
+                primitive_id=a.primitive,
+                poses=a.poses,
+                confidence=a.confidence,
+                bimanual=a.bimanual,
+            )
+            for a in result.affordances
+        ],
+        timings_ms=result.timings_ms,
+    )

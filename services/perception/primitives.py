@@ -1,0 +1,342 @@
+"""Algorithm 1 (Geometric Primitive Extraction) per segment, then boxes from orthogonal planes.
+
+For each segment P_i, while τ_min ≤ |P_i|: fit a plane, a cylinder and a sphere by RANSAC, keep
+the one with most inliers (a curved model must beat the plane clearly and really be curved),
+keep the largest connected cluster of its inliers (Euclidean clustering, on the image grid),
+compute its geometric properties and remove it from P_i. Segments above τ_max points are fitted
+on a random τ_max of them; inliers are always counted on all. Afterwards, two or three mutually
+orthogonal, touching planes of one segment become a box (thesis 3.1: cuboids).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from services.perception import ransac
+from services.perception.cloud import OrganizedCloud
+from services.perception.obb import Box, axis_box, intersect, plane_box
+
+
+@dataclass
+class ExtractionConfig:
+    tau_min: int = 60  # fewest inliers of a primitive (grid points)
+    share_min: float = 0.05  # ... and at least this share of its segment (leftovers stay out)
+    tau_max: int = 4_000  # most points one fit looks at (inliers are counted on all)
+    dist_base: float = 0.004  # inlier distance d(z) = dist_base + dist_quad·z² (m)
+    dist_quad: float = 0.004
+    angle_deg: float = 25.0  # largest normal deviation of an inlier at 1 m ...
+    angle_per_m: float = 12.0  # ... growing with distance as the normals get noisier
+    angle_max: float = 60.0
+    radius_min: float = 0.01
+    radius_max: float = 0.25
+    curved_gain: float = 1.1  # a cylinder / sphere must have this many times the plane's inliers
+    two_plane_share: float = 0.8  # two planes explaining this share make a segment piecewise planar
+    min_arc_deg: float = 45.0  # a cylinder's normals must sweep this arc around its axis
+    min_sphere_spread_deg: float = 15.0
+    box_orthogonal_deg: float = 12.0
+    box_touch: float = 0.02
+    box_edge_ratio: float = 0.6  # faces of a box: lengths along the common edge agree this well
+
+
+@dataclass
+class Extracted:
+    """One primitive ψ with its inlier grid pixels."""
+
+    kind: str
+    pixels: np.ndarray  # flat indices into the grid
+    points: np.ndarray  # (n, 3) inlier points
+    box: Box
+    segment: int
+    normal: np.ndarray | None = None  # plane
+    d: float = 0.0
+    center: np.ndarray | None = None  # cylinder, sphere, box
+    axis: np.ndarray | None = None  # cylinder
+    radius: float = 0.0
+    rotation: np.ndarray | None = None  # box
+    extent: np.ndarray | None = None  # box
+    height: float = 0.0  # cylinder
+
+
+def _largest_cluster(pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The largest 8-connected component (on the grid) of the given pixels: Euclidean
+    clustering where neighbours are pixels."""
+    if len(pixels) == 0:
+        return pixels
+    rows, cols = np.divmod(pixels, shape[1])
+    r0, c0 = rows.min(), cols.min()
+    grid = np.zeros((rows.max() - r0 + 1, cols.max() - c0 + 1), bool)
+    grid[rows - r0, cols - c0] = True
+    labels, n = ndimage.label(grid, structure=np.ones((3, 3), bool))
+    if n <= 1:
+        return pixels
+    own = labels[rows - r0, cols - c0]
+    return pixels[own == np.argmax(np.bincount(own))]
+
+
+def _make(
+    fit: ransac.Fit, pixels: np.ndarray, points: np.ndarray, segment: int, camera: np.ndarray
+) -> Extracted:
+    if fit.kind == "plane":
+        normal, d = fit.normal, fit.d
+        if normal @ (camera - points.mean(0)) < 0:  # a plane's normal faces the camera
+            normal, d = -normal, -d
+        return Extracted(
+            "plane", pixels, points, plane_box(points, normal), segment, normal=normal, d=d
+        )
+    if fit.kind == "cylinder":
+        box = axis_box(points, fit.axis, fit.center, fit.radius)
+        return Extracted(
+            "cylinder",
+            pixels,
+            points,
+            box,
+            segment,
+            center=box.center,
+            axis=fit.axis,
+            radius=fit.radius,
+            height=float(box.extent[2]),
+        )
+    box = Box(fit.center.copy(), np.eye(3), np.full(3, 2 * fit.radius))
+    return Extracted("sphere", pixels, points, box, segment, center=fit.center, radius=fit.radius)
+
+
+def _cap(
+    fit: ransac.Fit, X: np.ndarray, N: np.ndarray, inliers: np.ndarray, dist: float
+) -> np.ndarray:
+    """Points of a cylinder's end caps: within the radius of the axis, just beyond the side's
+    span, normals along the axis."""
+    v = X - fit.center
+    t = v @ fit.axis
+    radial = np.linalg.norm(v - np.outer(t, fit.axis), axis=1)
+    lo, hi = t[inliers].min(), t[inliers].max()
+    near_end = (
+        (t > lo - 2 * dist) & (t < hi + 2 * dist) & ((t < lo + 2 * dist) | (t > hi - 2 * dist))
+    )
+    return near_end & (radial < fit.radius + dist) & (np.abs(N @ fit.axis) > 0.8)
+
+
+def extract_segment(
+    cloud: OrganizedCloud,
+    pixels: np.ndarray,
+    segment: int,
+    config: ExtractionConfig,
+    rng: np.random.Generator,
+) -> list[Extracted]:
+    """Algorithm 1 on one segment (its flat grid pixel indices). After each primitive the rest
+    of the segment is split into its connected parts (Euclidean clustering once the dominant
+    plane is gone: an object whose crease with the table was not closed stands apart again),
+    and each part goes on on its own."""
+    P = cloud.points.reshape(-1, 3)
+    Nn = cloud.normals.reshape(-1, 3)
+    out: list[Extracted] = []
+    parts = [pixels]
+    while parts:
+        remaining = parts.pop()
+        least = max(config.tau_min, int(config.share_min * len(remaining)))
+        if len(remaining) < least:
+            continue
+        X, N = P[remaining].astype(np.float64), Nn[remaining].astype(np.float64)
+        sample = np.arange(len(X))
+        if len(X) > config.tau_max:
+            sample = rng.choice(len(X), config.tau_max, replace=False)
+        cam_dist = float(np.median(np.linalg.norm(X[sample[:200]] - cloud.camera_centre, axis=1)))
+        dist = config.dist_base + config.dist_quad * cam_dist**2
+        angle = config.angle_deg + config.angle_per_m * max(0.0, cam_dist - 1.0)
+        cos_min = np.cos(np.radians(min(angle, config.angle_max)))
+        plane = ransac.fit_plane(X[sample], N[sample], rng, dist, cos_min)
+        fits = [plane]
+        # a curved model must have curved_gain × the plane's inliers: impossible once the plane
+        # explains more than 1 / curved_gain of the segment
+        plane_share = plane.count / len(sample) if plane is not None else 0.0
+        two_planes = 0  # points a second plane explains beyond the first (a box's faces)
+        if 0 < plane_share * config.curved_gain < 1.0:
+            rest = ~plane.inliers
+            second = ransac.fit_plane(X[sample][rest], N[sample][rest], rng, dist, cos_min, 24)
+            if second is not None:
+                two_planes = plane.count + second.count
+                if two_planes >= config.two_plane_share * len(sample):
+                    plane_share = 1.0  # piecewise planar (a box): no curved fit needed
+        if plane_share * config.curved_gain < 1.0:
+            fits.append(
+                ransac.fit_cylinder(
+                    X[sample], N[sample], rng, dist, cos_min, config.radius_min, config.radius_max
+                )
+            )
+            fits.append(
+                ransac.fit_sphere(
+                    X[sample], N[sample], rng, dist, cos_min, config.radius_min, config.radius_max
+                )
+            )
+        best = _choose(fits, X, N, dist, cos_min, config, two_planes * len(X) / len(sample))
+        if best is None or best.count < least:
+            continue
+        # membership: the normal-tested inliers, grown by one grid step to the points that fit
+        # by distance alone (near silhouettes the normals are smoothed across the edge and
+        # the normal test would shave the primitive's border off)
+        keep = best.inliers | (
+            _near(remaining, best.inliers, cloud.shape) & (_distances(best, X) < dist)
+        )
+        if best.kind == "cylinder":
+            keep = keep | _cap(best, X, N, best.inliers, dist)
+        cluster = _largest_cluster(remaining[keep], cloud.shape)
+        if len(cluster) < least:
+            continue
+        if best.kind == "cylinder":  # the box spans the side only: caps do not move the ends
+            side = np.isin(cluster, remaining[_distances(best, X) < dist])
+            prim = _make(
+                best,
+                cluster[side],
+                P[cluster[side]].astype(np.float64),
+                segment,
+                cloud.camera_centre,
+            )
+            prim.pixels, prim.points = cluster, P[cluster].astype(np.float64)
+        else:
+            prim = _make(best, cluster, P[cluster].astype(np.float64), segment, cloud.camera_centre)
+        out.append(prim)
+        remaining = remaining[~np.isin(remaining, cluster)]
+        parts += [p for p in _components(remaining, cloud.shape) if len(p) >= config.tau_min]
+    return out
+
+
+def _components(pixels: np.ndarray, shape: tuple[int, int]) -> list[np.ndarray]:
+    """The 8-connected components of the given grid pixels."""
+    if len(pixels) == 0:
+        return []
+    rows, cols = np.divmod(pixels, shape[1])
+    r0, c0 = rows.min(), cols.min()
+    grid = np.zeros((rows.max() - r0 + 1, cols.max() - c0 + 1), bool)
+    grid[rows - r0, cols - c0] = True
+    labels, n = ndimage.label(grid, structure=np.ones((3, 3), bool))
+    own = labels[rows - r0, cols - c0]
+    order = np.argsort(own, kind="stable")
+    bounds = np.searchsorted(own[order], np.arange(1, n + 2))
+    return [pixels[order[bounds[k] : bounds[k + 1]]] for k in range(n)]
+
+
+def _near(pixels: np.ndarray, mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Which of ``pixels`` are within one grid step of the ``mask``-ed ones."""
+    rows, cols = np.divmod(pixels, shape[1])
+    r0, c0 = rows.min() - 1, cols.min() - 1
+    grid = np.zeros((rows.max() - r0 + 2, cols.max() - c0 + 2), bool)
+    grid[rows[mask] - r0, cols[mask] - c0] = True
+    grid = ndimage.binary_dilation(grid, structure=np.ones((3, 3), bool))
+    return grid[rows - r0, cols - c0]
+
+
+def _distances(fit: ransac.Fit, X: np.ndarray) -> np.ndarray:
+    if fit.kind == "plane":
+        return np.abs(X @ fit.normal + fit.d)
+    if fit.kind == "cylinder":
+        return ransac.cylinder_residuals(X, X, fit.center, fit.axis, fit.radius)[0]
+    return np.abs(np.linalg.norm(X - fit.center, axis=1) - fit.radius)
+
+
+def _choose(
+    fits, X, N, dist, cos_min, config: ExtractionConfig, two_planes: float = 0.0
+) -> ransac.Fit | None:
+    """Most inliers on the whole segment. A curved model must really be curved and beat the
+    plane clearly — and beat two planes together where two explain the segment (a box)."""
+    scored: list[ransac.Fit] = []
+    for fit in fits:
+        if fit is None:
+            continue
+        if fit.kind == "plane":
+            res = ransac.plane_residuals(X, N, fit.normal, fit.d)
+        elif fit.kind == "cylinder":
+            res = ransac.cylinder_residuals(X, N, fit.center, fit.axis, fit.radius)
+        else:
+            res = ransac.sphere_residuals(X, N, fit.center, fit.radius)
+        fit.inliers = (res[0] < dist) & (res[1] > cos_min)
+        if (
+            fit.kind == "cylinder"
+            and ransac.cylinder_arc(N[fit.inliers], fit.axis) < config.min_arc_deg
+        ):
+            continue
+        if (
+            fit.kind == "sphere"
+            and ransac.sphere_spread(N[fit.inliers]) < config.min_sphere_spread_deg
+        ):
+            continue
+        scored.append(fit)
+    plane = next((f.count for f in scored if f.kind == "plane"), 0)
+    bar = max(config.curved_gain * plane, two_planes)
+    candidates = [f for f in scored if f.kind == "plane" or f.count >= bar]
+    return max(candidates, key=lambda f: f.count, default=None)
+
+
+def _box_from_faces(faces: list[Extracted], points: np.ndarray, R: np.ndarray) -> Box:
+    """Each seen face fixes its side of the box at its fitted plane (noise averages out); the
+    other sides come from the farthest points."""
+    local = points @ R
+    lo, hi = local.min(0), local.max(0)
+    for f in faces:
+        k = int(np.argmax(np.abs(R.T @ f.normal)))
+        offset = float(np.mean(f.points @ R[:, k]))
+        if f.normal @ R[:, k] > 0:  # visible faces' normals point out of the box
+            hi[k] = offset
+        else:
+            lo[k] = offset
+    return Box(R @ ((lo + hi) / 2), R, hi - lo)
+
+
+def _share_an_edge(a: Extracted, b: Extracted, config: ExtractionConfig) -> bool:
+    """Two faces of one box are about as long along their common edge (a table top and the
+    front of a crate standing on it are not)."""
+    edge = np.cross(a.normal, b.normal)
+    edge /= np.linalg.norm(edge)
+    la, lb = np.ptp(a.points @ edge), np.ptp(b.points @ edge)
+    return min(la, lb) >= config.box_edge_ratio * max(la, lb)
+
+
+def assemble_boxes(prims: list[Extracted], config: ExtractionConfig) -> list[Extracted]:
+    """Two or three mutually orthogonal, touching planes of one segment become one box."""
+    sin_orth = np.sin(np.radians(config.box_orthogonal_deg))
+    out = [p for p in prims if p.kind != "plane"]
+    planes = [p for p in prims if p.kind == "plane"]
+    used = [False] * len(planes)
+    for i, a in enumerate(planes):
+        if used[i]:
+            continue
+        group = [i]
+        for j in range(len(planes)):
+            if j == i or used[j] or planes[j].segment != a.segment:
+                continue
+            b = planes[j]
+            orthogonal = all(abs(planes[k].normal @ b.normal) < sin_orth for k in group)
+            if (
+                orthogonal
+                and any(intersect(planes[k].box, b.box, config.box_touch) for k in group)
+                and all(_share_an_edge(planes[k], b, config) for k in group)
+            ):
+                group.append(j)
+            if len(group) == 3:
+                break
+        if len(group) == 1:
+            continue
+        for k in group:
+            used[k] = True
+        faces = sorted((planes[k] for k in group), key=lambda p: -len(p.pixels))
+        a1 = faces[0].normal
+        a2 = faces[1].normal - (faces[1].normal @ a1) * a1
+        a2 /= np.linalg.norm(a2)
+        R = np.column_stack([a1, a2, np.cross(a1, a2)])
+        points = np.concatenate([f.points for f in faces])
+        box = _box_from_faces(faces, points, R)
+        out.append(
+            Extracted(
+                "box",
+                np.concatenate([f.pixels for f in faces]),
+                points,
+                box,
+                a.segment,
+                center=box.center,
+                rotation=box.rotation,
+                extent=box.extent,
+            )
+        )
+    out += [p for k, p in enumerate(planes) if not used[k]]
+    return out

@@ -1,0 +1,271 @@
+"""RANSAC for planes, cylinders and spheres (Algorithm 1's fitting step), vectorised.
+
+Hypotheses come from minimal samples that use the normals, as in Schnabel et al. (2007): a
+plane from three points, a cylinder from two oriented points (axis n1 × n2), a sphere from two
+oriented points (where their normal lines meet). All hypotheses are scored at once on a subset
+of the segment (distance below ``dist`` and normal within ``angle_deg``), the best one is refined
+by least squares on its inliers, and the inliers are counted on the whole segment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+SUBSET = 300  # points scoring the hypotheses
+
+
+@dataclass
+class Fit:
+    kind: str  # plane | cylinder | sphere
+    inliers: np.ndarray  # bool mask over the segment's points
+    normal: np.ndarray = field(default_factory=lambda: np.zeros(3))  # plane
+    d: float = 0.0  # plane: n·x + d = 0
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))  # cylinder / sphere
+    axis: np.ndarray = field(default_factory=lambda: np.zeros(3))  # cylinder
+    radius: float = 0.0
+
+    @property
+    def count(self) -> int:
+        return int(self.inliers.sum())
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return np.divide(v, n, out=np.zeros_like(v), where=n > 1e-12)
+
+
+# -- residuals ---------------------------------------------------------------------------------
+
+
+def plane_residuals(X, N, normal, d):
+    return np.abs(X @ normal + d), np.abs(N @ normal)
+
+
+def cylinder_residuals(X, N, center, axis, radius):
+    v = X - center
+    radial = v - np.outer(v @ axis, axis)
+    r = np.linalg.norm(radial, axis=1)
+    cos = np.abs(np.einsum("ij,ij->i", N, radial)) / np.maximum(r, 1e-9)
+    return np.abs(r - radius), cos
+
+
+def sphere_residuals(X, N, center, radius):
+    v = X - center
+    r = np.linalg.norm(v, axis=1)
+    cos = np.abs(np.einsum("ij,ij->i", N, v)) / np.maximum(r, 1e-9)
+    return np.abs(r - radius), cos
+
+
+def _inliers(res, cos, dist, cos_min):
+    return (res < dist) & (cos > cos_min)
+
+
+# -- least-squares refinement ------------------------------------------------------------------
+
+
+def refine_plane(X: np.ndarray) -> tuple[np.ndarray, float]:
+    c = X.mean(axis=0)
+    _, _, vt = np.linalg.svd(X - c, full_matrices=False)
+    n = vt[2]
+    return n, float(-n @ c)
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least squares by the normal equations (small, well-posed systems; much faster than
+    lstsq's SVD)."""
+    AtA = A.T @ A
+    try:
+        return np.linalg.solve(AtA, A.T @ b)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(A, b, rcond=None)[0]
+
+
+def _circle_fit(Q: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, float]:
+    """Circle fit in 2D: algebraic (Kåsa) start, then Gauss-Newton on the geometric distance
+    (Kåsa alone shrinks the radius of a short, noisy arc)."""
+    A = np.column_stack([2 * Q, np.ones(len(Q))])
+    sol = _solve(A, (Q**2).sum(1))
+    c = sol[:2]
+    r = float(np.sqrt(max(sol[2] + c @ c, 0.0)))
+    for _ in range(iterations):
+        d = Q - c
+        dist = np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+        J = np.column_stack([-d / dist[:, None], -np.ones(len(Q))])
+        step = _solve(J, r - dist)
+        c, r = c + step[:2], r + float(step[2])
+        if abs(step).max() < 1e-6:
+            break
+    return c, abs(r)
+
+
+def refine_cylinder(
+    X: np.ndarray, N: np.ndarray, axis: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """Axis = direction least aligned with the normals; centre and radius from a circle fit of
+    the points projected along it."""
+    w, v = np.linalg.eigh(N.T @ N)
+    # the normals pin the axis down only when they sweep an arc (two clearly non-zero
+    # eigenvalues); on a nearly flat patch keep the hypothesis' axis
+    a = v[:, 0] if w[1] > 4 * max(w[0], 1e-12) else axis
+    a = a / np.linalg.norm(a)
+    e1 = _unit(np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0]))
+    e2 = np.cross(a, e1)
+    o = X.mean(axis=0)
+    Q = np.column_stack([(X - o) @ e1, (X - o) @ e2])
+    c2, r = _circle_fit(Q)
+    return o + c2[0] * e1 + c2[1] * e2, a, r
+
+
+def refine_sphere(X: np.ndarray) -> tuple[np.ndarray, float]:
+    A = np.column_stack([2 * X, np.ones(len(X))])
+    sol = _solve(A, (X**2).sum(1))
+    c = sol[:3]
+    return c, float(np.sqrt(max(sol[3] + c @ c, 0.0)))
+
+
+# -- hypotheses --------------------------------------------------------------------------------
+
+
+def _pairs(rng: np.random.Generator, n: int, k: int) -> tuple[np.ndarray, np.ndarray]:
+    i = rng.integers(0, n, k)
+    j = rng.integers(0, n, k)
+    keep = i != j
+    return i[keep], j[keep]
+
+
+def fit_plane(X, N, rng, dist, cos_min, hypotheses=48) -> Fit | None:
+    n = len(X)
+    if n < 3:
+        return None
+    idx = rng.integers(0, n, (hypotheses, 3))
+    p0, p1, p2 = X[idx[:, 0]], X[idx[:, 1]], X[idx[:, 2]]
+    normals = _unit(np.cross(p1 - p0, p2 - p0))
+    ok = normals.any(axis=1)
+    normals, p0 = normals[ok], p0[ok]
+    if not len(normals):
+        return None
+    ds = -np.einsum("ij,ij->i", normals, p0)
+    S = rng.choice(n, min(n, SUBSET), replace=False)
+    res = np.abs(X[S] @ normals.T + ds)
+    cos = np.abs(N[S] @ normals.T)
+    score = ((res < dist) & (cos > cos_min)).sum(0)
+    best = int(np.argmax(score))
+    normal, d = normals[best], float(ds[best])
+    for _ in range(2):
+        mask = _inliers(*plane_residuals(X, N, normal, d), dist, cos_min)
+        if mask.sum() < 3:
+            return None
+        normal, d = refine_plane(X[mask])
+    mask = _inliers(*plane_residuals(X, N, normal, d), dist, cos_min)
+    return Fit("plane", mask, normal=normal, d=d)
+
+
+def fit_cylinder(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit | None:
+    n = len(X)
+    if n < 10:
+        return None
+    i, j = _pairs(rng, n, hypotheses)
+    p1, n1, p2, n2 = X[i], N[i], X[j], N[j]
+    axes = np.cross(n1, n2)
+    s = np.linalg.norm(axes, axis=1)
+    ok = s > np.sin(np.radians(5))
+    if not ok.any():
+        return None
+    p1, n1, p2, n2, axes = p1[ok], n1[ok], p2[ok], n2[ok], axes[ok] / s[ok, None]
+    # closest points of the normal lines, in the plane across the axis
+    proj = lambda v: v - np.einsum("ij,ij->i", v, axes)[:, None] * axes  # noqa: E731
+    m1, m2, w = proj(n1), proj(n2), proj(p1 - p2)
+    a, b, c = (m1 * m1).sum(1), (m1 * m2).sum(1), (m2 * m2).sum(1)
+    e, f = (m1 * w).sum(1), (m2 * w).sum(1)
+    den = a * c - b * b
+    good = den > 1e-9
+    t = np.where(good, (b * f - c * e) / np.where(good, den, 1), 0)
+    centers = p1 + t[:, None] * n1
+    radii = np.linalg.norm(proj(p1 - centers), axis=1)
+    good &= (radii > r_min) & (radii < r_max)
+    if not good.any():
+        return None
+    centers, axes, radii = centers[good], axes[good], radii[good]
+    S = rng.choice(n, min(n, SUBSET), replace=False)
+    v = X[S][None, :, :] - centers[:, None, :]  # (k, m, 3)
+    along = np.einsum("kmc,kc->km", v, axes)
+    radial = v - along[..., None] * axes[:, None, :]
+    r = np.linalg.norm(radial, axis=2)
+    cos = np.abs(np.einsum("kmc,mc->km", radial, N[S])) / np.maximum(r, 1e-9)
+    score = ((np.abs(r - radii[:, None]) < dist) & (cos > cos_min)).sum(1)
+    best = int(np.argmax(score))
+    center, axis, radius = centers[best], axes[best], float(radii[best])
+    for _ in range(2):
+        mask = _inliers(*cylinder_residuals(X, N, center, axis, radius), dist, cos_min)
+        if mask.sum() < 10:
+            return None
+        center, axis, radius = refine_cylinder(X[mask], N[mask], axis)
+        if not r_min < radius < r_max:
+            return None
+    mask = _inliers(*cylinder_residuals(X, N, center, axis, radius), dist, cos_min)
+    return Fit("cylinder", mask, center=center, axis=axis, radius=radius)
+
+
+def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit | None:
+    n = len(X)
+    if n < 10:
+        return None
+    i, j = _pairs(rng, n, hypotheses)
+    p1, n1, p2, n2 = X[i], N[i], X[j], N[j]
+    w = p1 - p2
+    a, b, c = (n1 * n1).sum(1), (n1 * n2).sum(1), (n2 * n2).sum(1)
+    e, f = (n1 * w).sum(1), (n2 * w).sum(1)
+    den = a * c - b * b
+    good = den > 1e-6
+    den = np.where(good, den, 1)
+    t, s = (b * f - c * e) / den, (a * f - b * e) / den
+    q1, q2 = p1 + t[:, None] * n1, p2 + s[:, None] * n2
+    centers = (q1 + q2) / 2
+    radii = (np.linalg.norm(p1 - centers, axis=1) + np.linalg.norm(p2 - centers, axis=1)) / 2
+    good &= (np.linalg.norm(q1 - q2, axis=1) < 0.2 * radii) & (radii > r_min) & (radii < r_max)
+    if not good.any():
+        return None
+    centers, radii = centers[good], radii[good]
+    S = rng.choice(n, min(n, SUBSET), replace=False)
+    v = X[S][None, :, :] - centers[:, None, :]
+    r = np.linalg.norm(v, axis=2)
+    cos = np.abs(np.einsum("kij,ij->ki", v, N[S])) / np.maximum(r, 1e-9)
+    score = ((np.abs(r - radii[:, None]) < dist) & (cos > cos_min)).sum(1)
+    best = int(np.argmax(score))
+    center, radius = centers[best], float(radii[best])
+    for _ in range(2):
+        mask = _inliers(*sphere_residuals(X, N, center, radius), dist, cos_min)
+        if mask.sum() < 10:
+            return None
+        center, radius = refine_sphere(X[mask])
+        if not r_min < radius < r_max:
+            return None
+    mask = _inliers(*sphere_residuals(X, N, center, radius), dist, cos_min)
+    return Fit("sphere", mask, center=center, radius=radius)
+
+
+# -- is a curved fit really curved? ------------------------------------------------------------
+
+
+def cylinder_arc(N: np.ndarray, axis: np.ndarray) -> float:
+    """Angle (deg) the inlier normals sweep around the axis: small for a flat patch."""
+    e1 = _unit(np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0]))
+    e2 = np.cross(axis, e1)
+    ang = np.arctan2(N @ e2, N @ e1)
+    ang = np.sort(np.mod(ang, 2 * np.pi))
+    if len(ang) < 2:
+        return 0.0
+    gaps = np.diff(np.concatenate([ang, ang[:1] + 2 * np.pi]))
+    return float(np.degrees(2 * np.pi - gaps.max()))
+
+
+def sphere_spread(N: np.ndarray) -> float:
+    """Smaller angular spread (deg) of the normals across their two main directions."""
+    if len(N) < 3:
+        return 0.0
+    m = _unit(N.mean(axis=0))
+    D = N - np.outer(N @ m, m)
+    w = np.linalg.eigvalsh(D.T @ D / len(N))
+    return float(np.degrees(np.arcsin(np.sqrt(np.clip(w[1], 0, 1)))))

@@ -1,0 +1,112 @@
+"""The perception service as a process over Zenoh: a frame in, an observation out; bad frames
+are answered (empty observation) or dropped and counted, and the service goes on."""
+
+from __future__ import annotations
+
+import threading
+
+import msgpack
+import numpy as np
+import pytest
+
+from schemas import (
+    CameraIntrinsics,
+    Keys,
+    RgbdFrame,
+    SceneObservation,
+    ServiceMetrics,
+    decode,
+    encode,
+)
+from services.sim import capture
+from services.sim.render import CameraRenderer
+from services.sim.robots import ARMAR6
+from services.sim.world import World
+from tests.conftest import avs_env, matched_publisher, wait_for
+
+KEYS = Keys()
+
+
+@pytest.fixture(scope="module")
+def clutter_frame() -> RgbdFrame:
+    world = World("tabletop_clutter", ARMAR6)
+    renderer = CameraRenderer(world.model, 640, 480)
+    T, stamp = capture.snapshot(world, renderer, "head_rgbd")
+    frame = capture.frame(world, renderer, "head_rgbd", T, stamp, 41, np.random.default_rng(0))
+    renderer.close()
+    return frame
+
+
+def _metrics(client) -> ServiceMetrics:
+    (reply,) = [r.ok for r in client.get(KEYS.metrics("perception", "p0"), timeout=10) if r.ok]
+    return decode(reply.payload.to_bytes(), ServiceMetrics)
+
+
+def test_frames_in_observations_out_and_bad_frames_counted(client, router, procs, clutter_frame):
+    observations: list[SceneObservation] = []
+    lock = threading.Lock()
+
+    def keep(sample):
+        with lock:
+            observations.append(decode(sample.payload.to_bytes(), SceneObservation))
+
+    client.declare_subscriber(KEYS.observation(), keep)
+    procs.python(["-m", "services.perception", "--instance", "p0"], env=avs_env(router))
+    frames = matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60)
+
+    def send(payload: bytes, answered: int | None, dropped: int | None) -> None:
+        frames.put(payload)
+        if answered is not None:
+            wait_for(lambda: len(observations) == answered, 30, "an observation")
+        if dropped is not None:
+            wait_for(lambda: sum(_metrics(client).dropped.values()) == dropped, 30, "a drop")
+
+    send(encode(clutter_frame), 1, None)
+    obs = observations[0]
+    assert obs.frame_seq == 41 and obs.worker == "p0" and obs.camera == "head_rgbd"
+    assert len(obs.primitives) >= 9 and len(obs.support_edges) >= 7
+    assert {"cloud", "segmentation", "primitives", "support_graph", "total"} <= set(obs.timings_ms)
+    assert all(len(p.inliers) <= 2000 for p in obs.primitives)
+
+    for n, depth in enumerate(
+        [
+            np.full((480, 640), np.nan),
+            np.zeros((480, 640)),
+            np.pad([[1.2]], ((0, 479), (0, 639))),
+            np.random.default_rng(1).uniform(0.35, 3.0, (480, 640)),
+        ]
+    ):
+        bad = clutter_frame.model_copy(update={"seq": 100 + n, "depth": depth.astype(np.float32)})
+        send(encode(bad), 2 + n, None)
+        assert observations[-1].primitives == [] and observations[-1].frame_seq == 100 + n
+
+    no_depth = clutter_frame.model_copy(update={"depth": None})
+    send(encode(no_depth), None, 1)
+    wrong_size = msgpack.unpackb(encode(clutter_frame))
+    wrong_size["intrinsics"]["width"] = 320  # image 640 wide: inconsistent
+    send(msgpack.packb(wrong_size), None, 2)
+    big = RgbdFrame(
+        camera="head_rgbd",
+        intrinsics=CameraIntrinsics.from_fov(1600, 1200, 45.0),
+        depth=np.ones((1200, 1600), np.float32),
+        T_world_camera=np.eye(4),
+    )
+    send(encode(big), None, 3)
+    dropped = _metrics(client).dropped
+    assert dropped == {"no_depth": 1, "invalid": 1, "oversized": 1}
+
+    send(encode(clutter_frame.model_copy(update={"seq": 200})), 6, None)  # still serving
+    assert len(observations[-1].primitives) >= 9
+
+
+def test_a_slow_perception_skips_stale_frames(client, router, procs, clutter_frame):
+    seen: list[int] = []
+    client.declare_subscriber(
+        KEYS.observation(), lambda s: seen.append(decode(s.payload.to_bytes()).frame_seq)
+    )
+    procs.python(["-m", "services.perception", "--instance", "p1"], env=avs_env(router))
+    frames = matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60)
+    for i in range(30):  # far faster than 100 ms a frame
+        frames.put(encode(clutter_frame.model_copy(update={"seq": i})))
+    wait_for(lambda: seen and seen[-1] == 29, 60, "the newest frame's observation")
+    assert len(seen) < 15 and seen == sorted(seen)
