@@ -25,6 +25,9 @@ class SimSettings(ServiceSettings):
     replay_wait: float = Field(
         10.0, ge=0, description="seconds a replay waits for a subscriber before it starts"
     )
+    replay_linger: float = Field(
+        1.0, ge=0, description="seconds a finished replay waits before it closes its session"
+    )
     speed: float = Field(1.0, gt=0, description="realtime factor (realtime mode and replay)")
     cameras: list[str] = Field(
         default_factory=list, description="cameras to publish (default: the robot's main one)"

@@ -60,6 +60,9 @@ class ReplayNode:
             self.played += 1
             self.t = record.t
         log.info("replay finished", extra={"records": self.played})
+        # linger before closing the session, as a socket does: the last large frames may still
+        # be on their way through the router
+        self.node._stop.wait(self.settings.replay_linger)
         self.node.stop()
 
     def on_control(self, request: SimControl | None) -> SimStatus:
