@@ -123,3 +123,105 @@ def boundaries(
                         edge[r, c] = True
                         edge[r2, c2] = True
     return edge
+
+
+@njit(cache=True, nogil=True)
+def _plane_inliers(X, N, nx, ny, nz, d, dist, cos_min, out):
+    count = 0
+    for i in range(X.shape[0]):
+        r = abs(X[i, 0] * nx + X[i, 1] * ny + X[i, 2] * nz + d)
+        c = abs(N[i, 0] * nx + N[i, 1] * ny + N[i, 2] * nz)
+        ok = r < dist and c > cos_min
+        out[i] = ok
+        count += ok
+    return count
+
+
+@njit(cache=True, nogil=True)
+def plane_ransac(X, N, triples, subset, dist, cos_min, refinements):
+    """RANSAC plane: hypotheses from point triples scored on ``subset``, the best refined by
+    least squares (smallest eigenvector of the inliers' covariance) ``refinements`` times.
+    Returns (normal, d, inlier mask, found)."""
+    best_score, best_n, best_d = -1, np.zeros(3), 0.0
+    for h in range(triples.shape[0]):
+        a, b, c = X[triples[h, 0]], X[triples[h, 1]], X[triples[h, 2]]
+        ux, uy, uz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+        vx, vy, vz = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        norm = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if norm < 1e-12:
+            continue
+        nx, ny, nz = nx / norm, ny / norm, nz / norm
+        d = -(nx * a[0] + ny * a[1] + nz * a[2])
+        score = 0
+        for s in subset:
+            if (
+                abs(X[s, 0] * nx + X[s, 1] * ny + X[s, 2] * nz + d) < dist
+                and abs(N[s, 0] * nx + N[s, 1] * ny + N[s, 2] * nz) > cos_min
+            ):
+                score += 1
+        if score > best_score:
+            best_score = score
+            best_n[0], best_n[1], best_n[2], best_d = nx, ny, nz, d
+    mask = np.zeros(X.shape[0], np.bool_)
+    if best_score < 0:
+        return best_n, best_d, mask, False
+    for _ in range(refinements):
+        count = _plane_inliers(X, N, best_n[0], best_n[1], best_n[2], best_d, dist, cos_min, mask)
+        if count < 3:
+            return best_n, best_d, mask, False
+        mean = np.zeros(3)
+        for i in range(X.shape[0]):
+            if mask[i]:
+                for a in range(3):
+                    mean[a] += X[i, a]
+        mean /= count
+        cov = np.zeros((3, 3))
+        for i in range(X.shape[0]):
+            if mask[i]:
+                for a in range(3):
+                    da = X[i, a] - mean[a]
+                    for b in range(a, 3):
+                        cov[a, b] += da * (X[i, b] - mean[b])
+        for a in range(3):
+            for b in range(a):
+                cov[a, b] = cov[b, a]
+        _, v = np.linalg.eigh(cov)
+        best_n = v[:, 0].copy()
+        best_d = -(best_n[0] * mean[0] + best_n[1] * mean[1] + best_n[2] * mean[2])
+    _plane_inliers(X, N, best_n[0], best_n[1], best_n[2], best_d, dist, cos_min, mask)
+    return best_n, best_d, mask, True
+
+
+@njit(cache=True, nogil=True)
+def score_cylinders(X, N, subset, centers, axes, radii, dist, cos_min):
+    """Inliers of each cylinder hypothesis among ``subset``."""
+    out = np.zeros(radii.shape[0], np.int64)
+    for h in range(radii.shape[0]):
+        cx, cy, cz = centers[h, 0], centers[h, 1], centers[h, 2]
+        ax, ay, az = axes[h, 0], axes[h, 1], axes[h, 2]
+        for s in subset:
+            vx, vy, vz = X[s, 0] - cx, X[s, 1] - cy, X[s, 2] - cz
+            t = vx * ax + vy * ay + vz * az
+            rx, ry, rz = vx - t * ax, vy - t * ay, vz - t * az
+            r = math.sqrt(rx * rx + ry * ry + rz * rz)
+            if r < 1e-9 or abs(r - radii[h]) >= dist:
+                continue
+            if abs(N[s, 0] * rx + N[s, 1] * ry + N[s, 2] * rz) / r > cos_min:
+                out[h] += 1
+    return out
+
+
+@njit(cache=True, nogil=True)
+def score_spheres(X, N, subset, centers, radii, dist, cos_min):
+    """Inliers of each sphere hypothesis among ``subset``."""
+    out = np.zeros(radii.shape[0], np.int64)
+    for h in range(radii.shape[0]):
+        for s in subset:
+            vx, vy, vz = X[s, 0] - centers[h, 0], X[s, 1] - centers[h, 1], X[s, 2] - centers[h, 2]
+            r = math.sqrt(vx * vx + vy * vy + vz * vz)
+            if r < 1e-9 or abs(r - radii[h]) >= dist:
+                continue
+            if abs(N[s, 0] * vx + N[s, 1] * vy + N[s, 2] * vz) / r > cos_min:
+                out[h] += 1
+    return out

@@ -13,7 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-SUBSET = 300  # points scoring the hypotheses
+from services.perception import kernels
+
+SUBSET = 500  # points scoring the hypotheses
 
 
 @dataclass
@@ -135,31 +137,19 @@ def _pairs(rng: np.random.Generator, n: int, k: int) -> tuple[np.ndarray, np.nda
     return i[keep], j[keep]
 
 
+def _subset(rng: np.random.Generator, n: int) -> np.ndarray:
+    return np.arange(n) if n <= SUBSET else rng.integers(0, n, SUBSET)
+
+
 def fit_plane(X, N, rng, dist, cos_min, hypotheses=48) -> Fit | None:
     n = len(X)
     if n < 3:
         return None
-    idx = rng.integers(0, n, (hypotheses, 3))
-    p0, p1, p2 = X[idx[:, 0]], X[idx[:, 1]], X[idx[:, 2]]
-    normals = _unit(np.cross(p1 - p0, p2 - p0))
-    ok = normals.any(axis=1)
-    normals, p0 = normals[ok], p0[ok]
-    if not len(normals):
+    triples = rng.integers(0, n, (hypotheses, 3))
+    normal, d, mask, found = kernels.plane_ransac(X, N, triples, _subset(rng, n), dist, cos_min, 2)
+    if not found:
         return None
-    ds = -np.einsum("ij,ij->i", normals, p0)
-    S = rng.choice(n, min(n, SUBSET), replace=False)
-    res = np.abs(X[S] @ normals.T + ds)
-    cos = np.abs(N[S] @ normals.T)
-    score = ((res < dist) & (cos > cos_min)).sum(0)
-    best = int(np.argmax(score))
-    normal, d = normals[best], float(ds[best])
-    for _ in range(2):
-        mask = _inliers(*plane_residuals(X, N, normal, d), dist, cos_min)
-        if mask.sum() < 3:
-            return None
-        normal, d = refine_plane(X[mask])
-    mask = _inliers(*plane_residuals(X, N, normal, d), dist, cos_min)
-    return Fit("plane", mask, normal=normal, d=d)
+    return Fit("plane", mask, normal=normal, d=float(d))
 
 
 def fit_cylinder(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit | None:
@@ -188,13 +178,7 @@ def fit_cylinder(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit |
     if not good.any():
         return None
     centers, axes, radii = centers[good], axes[good], radii[good]
-    S = rng.choice(n, min(n, SUBSET), replace=False)
-    v = X[S][None, :, :] - centers[:, None, :]  # (k, m, 3)
-    along = np.einsum("kmc,kc->km", v, axes)
-    radial = v - along[..., None] * axes[:, None, :]
-    r = np.linalg.norm(radial, axis=2)
-    cos = np.abs(np.einsum("kmc,mc->km", radial, N[S])) / np.maximum(r, 1e-9)
-    score = ((np.abs(r - radii[:, None]) < dist) & (cos > cos_min)).sum(1)
+    score = kernels.score_cylinders(X, N, _subset(rng, n), centers, axes, radii, dist, cos_min)
     best = int(np.argmax(score))
     center, axis, radius = centers[best], axes[best], float(radii[best])
     for _ in range(2):
@@ -228,11 +212,7 @@ def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit | N
     if not good.any():
         return None
     centers, radii = centers[good], radii[good]
-    S = rng.choice(n, min(n, SUBSET), replace=False)
-    v = X[S][None, :, :] - centers[:, None, :]
-    r = np.linalg.norm(v, axis=2)
-    cos = np.abs(np.einsum("kij,ij->ki", v, N[S])) / np.maximum(r, 1e-9)
-    score = ((np.abs(r - radii[:, None]) < dist) & (cos > cos_min)).sum(1)
+    score = kernels.score_spheres(X, N, _subset(rng, n), centers, radii, dist, cos_min)
     best = int(np.argmax(score))
     center, radius = centers[best], float(radii[best])
     for _ in range(2):
