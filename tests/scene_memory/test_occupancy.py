@@ -1,0 +1,172 @@
+"""The occupancy map against OctoMap's semantics: a wall seen head-on, clamping, max range,
+bit-for-bit state counts against OctoMap itself (pyoctomap) on the same scan."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from services.scene_memory.occupancy import (
+    STATE_FREE,
+    STATE_OCCUPIED,
+    STATE_UNKNOWN,
+    OccupancyConfig,
+    OccupancyMap,
+)
+
+W, H, F = 320, 240, 288.0  # a small camera: 58° × 45°, pixels 4.5 mm apart at 1.3 m
+LO, HI = np.array([0.0, -1.0, 0.0]), np.array([2.4, 1.0, 2.0])
+
+
+def camera_facing_x(x: float = 0.2, z: float = 1.0) -> np.ndarray:
+    """T_world_camera at (x, 0, z), optical axis +x, image x to −y, image y down."""
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([[0.0, -1, 0], [0.0, 0, -1], [1.0, 0, 0]])
+    T[:3, 3] = [x, 0.0, z]
+    return T
+
+
+def wall_depth(distance: float) -> np.ndarray:
+    """A wall perpendicular to the optical axis fills the image: constant depth."""
+    return np.full((H, W), distance, np.float32)
+
+
+def integrate(m: OccupancyMap, depth: np.ndarray, T: np.ndarray, **kw) -> int:
+    return m.integrate_depth(depth, F, F, (W - 1) / 2, (H - 1) / 2, T, **kw)
+
+
+def state(m: OccupancyMap, point) -> int:
+    p = m.probability(np.array(point, float))
+    if p is None:
+        return STATE_UNKNOWN
+    return STATE_OCCUPIED if p > 0.5 else STATE_FREE
+
+
+@pytest.mark.parametrize("voxel", [0.02, 0.01])
+def test_a_wall_frees_the_space_before_it_and_hides_the_space_behind(voxel):
+    m = OccupancyMap(LO, HI, OccupancyConfig(voxel=voxel))
+    integrate(m, wall_depth(1.313), camera_facing_x())  # the wall at x = 1.513
+    for x in (0.3, 0.8, 1.2, 1.45):  # between the camera and the wall, on the axis and off it
+        assert state(m, (x, 0.0, 1.0)) == STATE_FREE
+        assert state(m, (x, 0.2 * (x - 0.2), 1.0 - 0.15 * (x - 0.2))) == STATE_FREE
+    for y, z in [(0.0, 1.0), (0.4, 1.2), (-0.5, 0.6)]:  # on the wall, inside the view
+        assert state(m, (1.515, y, z)) == STATE_OCCUPIED
+    for x in (1.56, 1.8, 2.3):  # behind it
+        assert state(m, (x, 0.0, 1.0)) == STATE_UNKNOWN
+    assert state(m, (1.0, 0.9, 1.0)) == STATE_UNKNOWN  # beside the view
+    # the occupied voxels are the wall's slab and nothing else
+    origin, states = m.states()
+    occupied = np.argwhere(states == STATE_OCCUPIED) * voxel + origin + voxel / 2
+    assert np.all(np.abs(occupied[:, 0] - 1.51) <= voxel)
+    # its area: the view's footprint at 1.313 m, (1.313 · W / F) × (1.313 · H / F)
+    area = len(occupied) * voxel**2
+    assert area == pytest.approx(1.313**2 * W * H / F**2, rel=0.08)
+    unknown, free, occ = m.counts()
+    assert occ == len(occupied) and unknown + free + occ == states.size
+
+
+def test_repeated_hits_and_misses_saturate_at_the_clamping_bounds():
+    c = OccupancyConfig(voxel=0.02)
+    m = OccupancyMap(LO, HI, c)
+    wall, free = (1.515, 0.0, 1.0), (0.9, 0.0, 1.0)
+    history = []
+    for _ in range(12):
+        integrate(m, wall_depth(1.313), camera_facing_x())
+        history.append((m.probability(np.array(wall)), m.probability(np.array(free))))
+    # one hit: p_hit; one miss: p_miss (Eq. of OctoMap: l = logit(p) per update)
+    assert history[0][0] == pytest.approx(c.p_hit, abs=1e-3)
+    assert history[0][1] == pytest.approx(c.p_miss, abs=1e-3)
+    # 0.7 → 0.845 → 0.927 → 0.967 → 0.97 (clamped): rises, then stays at clamp_max
+    hits = [h for h, _ in history]
+    assert hits[1] > hits[0] and hits[2] > hits[1]
+    assert all(h == pytest.approx(c.clamp_max, abs=1e-3) for h in hits[4:])
+    misses = [f for _, f in history]
+    assert all(f == pytest.approx(c.clamp_min, abs=1e-3) for f in misses[5:])
+    assert min(misses) >= c.clamp_min - 1e-3 and max(hits) <= c.clamp_max + 1e-3
+    # and a hit after saturation at clamp_min pulls it straight back by one step of l_hit
+    back = math.log(c.clamp_min / (1 - c.clamp_min)) + math.log(c.p_hit / (1 - c.p_hit))
+    integrate(m, wall_depth(0.71), camera_facing_x())  # the wall now at x = 0.91
+    assert m.probability(np.array([0.915, 0.0, 1.0])) == pytest.approx(
+        1 / (1 + math.exp(-back)), abs=1e-3
+    )
+
+
+def test_a_return_past_max_range_marks_nothing_occupied():
+    m = OccupancyMap(LO, HI, OccupancyConfig(voxel=0.02, max_range=1.0))
+    integrate(m, wall_depth(1.313), camera_facing_x())
+    _, free, occupied = m.counts()
+    assert occupied == 0 and free > 0
+    assert state(m, (0.9, 0.0, 1.0)) == STATE_FREE  # cleared up to the range ...
+    assert state(m, (1.25, 0.0, 1.0)) == STATE_UNKNOWN  # ... and not beyond it
+    assert state(m, (1.515, 0.0, 1.0)) == STATE_UNKNOWN
+
+
+def test_invalid_depths_are_skipped_and_rays_leaving_the_map_clip():
+    m = OccupancyMap(LO, HI, OccupancyConfig(voxel=0.02))
+    depth = wall_depth(1.313)
+    depth[:, : W // 2] = np.nan  # the left half of the image gives no return
+    depth[0, :] = 0.0
+    n = integrate(m, depth, camera_facing_x())
+    assert n > 0
+    assert state(m, (1.515, 0.3, 1.0)) == STATE_UNKNOWN  # image left = world +y
+    assert state(m, (1.515, -0.3, 1.0)) == STATE_OCCUPIED
+    # a camera outside the map looking in: only the part of each ray inside is updated
+    outside = OccupancyMap(np.array([1.0, -1.0, 0.0]), HI, OccupancyConfig(voxel=0.02))
+    integrate(outside, wall_depth(1.313), camera_facing_x())
+    assert state(outside, (1.2, 0.0, 1.0)) == STATE_FREE
+    assert state(outside, (1.515, 0.0, 1.0)) == STATE_OCCUPIED
+
+
+def test_snapshots_keep_the_map_and_not_the_scratch():
+    import pickle
+
+    m = OccupancyMap(LO, HI, OccupancyConfig(voxel=0.02))
+    integrate(m, wall_depth(1.313), camera_facing_x())
+    blob = pickle.dumps(m)
+    assert len(blob) < m.L.nbytes * 1.1  # the bit sets are not in it
+    back = pickle.loads(blob)
+    assert back.counts() == m.counts()
+    integrate(back, wall_depth(1.313), camera_facing_x())
+    integrate(m, wall_depth(1.313), camera_facing_x())
+    assert np.array_equal(back.L, m.L)
+
+
+def test_same_states_as_octomap_on_a_cluttered_scan():
+    """A scan of boxes at several depths, with holes and far returns: our unknown / free /
+    occupied counts equal OctoMap's (pyoctomap, insertPointCloud with discretize) within 1 %."""
+    pyoctomap = pytest.importorskip("pyoctomap")
+    rng = np.random.default_rng(3)
+    depth = np.full((H, W), 1.79, np.float32)
+    for _ in range(6):
+        r, c = rng.integers(0, H - 40), rng.integers(0, W - 40)
+        depth[r : r + rng.integers(20, 80), c : c + rng.integers(20, 100)] = rng.uniform(0.5, 1.5)
+    depth[rng.random((H, W)) < 0.05] = 0.0  # dropouts
+    depth[:20, :] = 3.5  # beyond max range
+    T = camera_facing_x()
+    voxel = 0.02
+    m = OccupancyMap(LO, HI, OccupancyConfig(voxel=voxel, max_range=3.0))
+    integrate(m, depth, T)
+    v, u = np.nonzero(depth > 0)
+    d = depth[v, u].astype(np.float64)
+    cam = np.column_stack([(u - (W - 1) / 2) / F * d, (v - (H - 1) / 2) / F * d, d])
+    points = cam @ T[:3, :3].T + T[:3, 3]
+    tree = pyoctomap.OcTree(voxel)
+    tree.insertPointCloud(points, T[:3, 3].copy(), 3.0, False, True)
+    shape = m.shape
+    theirs = np.zeros(shape, np.uint8)
+    for leaf in tree.begin_leafs():
+        c = np.asarray(leaf.getCoordinate(), float)
+        half = leaf.getSize() / 2
+        i0 = np.clip(np.round((c - half - LO) / voxel).astype(int), 0, shape)
+        i1 = np.clip(np.round((c + half - LO) / voxel).astype(int), 0, shape)
+        if np.all(i1 > i0):
+            value = STATE_OCCUPIED if tree.isNodeOccupied(leaf.current_node) else STATE_FREE
+            theirs[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]] = value
+    _, ours = m.states()
+    for s in (STATE_UNKNOWN, STATE_FREE, STATE_OCCUPIED):
+        a, b = int((ours == s).sum()), int((theirs == s).sum())
+        assert abs(a - b) <= 0.01 * b, (s, a, b)
+    # and voxel by voxel they agree almost everywhere
+    assert (ours != theirs).mean() < 0.001
