@@ -1,0 +1,476 @@
+"""Spatio-temporal fusion of geometric primitives (Algorithm 2) and support-graph combination
+(thesis 3.3, 3.3.1, Table 3.1).
+
+For a new view's primitives Ψ^{t+1} and the memory Ψ^{1,t}:
+
+1. frustum culling: only memory primitives in the camera's view take part;
+2. for each pair (ψ old, φ new) whose OBBs intersect and whose models agree
+   (CompareModelParameters), with Inlier(a, b) = |P_a ∩ OBB(b)| / |P_a| (Eq. 3.8):
+   - both cover each other (> λ_o): the same primitive seen again → merged into ψ (modified);
+   - Inlier(φ, ψ) > λ_o and Inlier(ψ, φ) < λ_p: φ is covered by the larger ψ → φ dropped
+     (its points join ψ);
+   - Inlier(ψ, φ) > λ_o and Inlier(φ, ψ) < λ_p: ψ is covered by the larger φ → ψ removed,
+     φ takes its place (and its support edges);
+   - coplanar pieces of one plane (both below λ_o): joined into one plane (modified);
+   - otherwise (partial overlap, λ_p ≤ coverage): both survive;
+3. Ψ^{1,t+1} = surviving memory ∪ surviving new.
+
+Support graphs combine by ``sg``: each view's edges, mapped onto memory ids, count into occ(e);
+``pc`` keeps only the edges of the latest view (the view of the registered cloud); ``pc+sg``
+counts those into occ(e).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from schemas import (
+    BoxModel,
+    CylinderModel,
+    Obb,
+    PlaneModel,
+    Primitive,
+    SceneModel,
+    SceneObservation,
+    SpatialEdge,
+    SupportEdge,
+)
+
+MAX_POINTS = 6000  # points a memory primitive keeps (voxel-downsampled)
+UP = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass
+class FusionConfig:
+    lambda_o: float = 0.7
+    lambda_p: float = 0.3
+    obb_margin: float = 0.01  # Eq. 3.8's OBB containment, allowing for depth noise
+    voxel: float = 0.01  # downsampling of merged inlier clouds
+    plane_angle_deg: float = 5.0  # CompareModelParameters tolerances
+    plane_offset: float = 0.02
+    axis_angle_deg: float = 10.0
+    radius: float = 0.015
+    center: float = 0.03
+    extent: float = 0.03
+    epsilon: float = 0.05  # spatial graph ε (Eq. 3.6)
+    changed: float = 0.01  # a merge that moves or grows a box by less is no modification
+    large_plane_area: float = 0.3  # m²: planes this large join coplanar pieces ...
+    plane_gap: float = 0.25  # ... up to this far apart
+    floor_band: float = 0.04  # level planes this close to the lowest one are the floor
+    ground_area: float = 0.2  # level surfaces this large count as ground (stability)
+    mode: str = "sg"  # pc | sg | pc+sg
+
+
+@dataclass
+class MemoryPrimitive:
+    id: int
+    primitive: Primitive  # model, OBB, colour as last fused (id field = memory id)
+    points: np.ndarray  # (n, 3) float32 fused inliers
+    views: int = 1
+
+
+@dataclass
+class Update:
+    added: int = 0
+    modified: int = 0
+    removed: int = 0
+    mapping: dict[int, int] = field(default_factory=dict)  # observation id → memory id
+
+
+# -- geometry helpers --------------------------------------------------------------------------
+
+
+def _in_obb(obb: Obb, points: np.ndarray, margin: float) -> np.ndarray:
+    local = (points - obb.center) @ obb.rotation
+    return np.all(np.abs(local) <= obb.extent / 2 + margin, axis=1)
+
+
+def inlier(points: np.ndarray, obb: Obb, margin: float) -> float:
+    """Inlier(a, b) = |P_a ∩ OBB(b)| / |P_a| (Eq. 3.8)."""
+    return float(_in_obb(obb, points, margin).mean()) if len(points) else 0.0
+
+
+def obbs_intersect(a: Obb, b: Obb, epsilon: float = 0.0) -> bool:
+    """Separating-axis test of two OBBs, each grown by ``epsilon``."""
+    A, B = a.rotation, b.rotation
+    axes = np.concatenate([A.T, B.T, np.cross(A.T[:, None, :], B.T[None, :, :]).reshape(9, 3)])
+    n = np.linalg.norm(axes, axis=1)
+    axes = axes[n > 1e-9] / n[n > 1e-9, None]
+    ra = np.abs(axes @ A) @ (a.extent / 2 + epsilon)
+    rb = np.abs(axes @ B) @ (b.extent / 2 + epsilon)
+    return bool(np.all(np.abs(axes @ (b.center - a.center)) <= ra + rb))
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(min(1.0, abs(float(a @ b))))))
+
+
+def _on_floor(p: Primitive, floor: float, c: FusionConfig) -> bool:
+    """A level plane at the height of the lowest level plane."""
+    m = p.model
+    if m.kind != "plane" or abs(m.normal[2]) < np.cos(np.radians(10)):
+        return False
+    return abs(-m.d / m.normal[2] - floor) < c.floor_band
+
+
+def _large_plane(a: Primitive, b: Primitive, c: FusionConfig) -> bool:
+    if a.model.kind != "plane" or b.model.kind != "plane":
+        return False
+    area = max(a.obb.extent[0] * a.obb.extent[1], b.obb.extent[0] * b.obb.extent[1])
+    return area >= c.large_plane_area
+
+
+def compare_models(a: Primitive, b: Primitive, c: FusionConfig) -> bool:
+    """CompareModelParameters: same kind and parameters within tolerance."""
+    ma, mb = a.model, b.model
+    if ma.kind != mb.kind:
+        return False
+    if ma.kind == "plane":
+        if _angle(ma.normal, mb.normal) > c.plane_angle_deg:
+            return False
+        return abs(float(mb.normal @ a.obb.center) + mb.d) < c.plane_offset
+    if ma.kind == "cylinder":
+        if _angle(ma.axis, mb.axis) > c.axis_angle_deg or abs(ma.radius - mb.radius) > c.radius:
+            return False
+        v = ma.center - mb.center
+        return float(np.linalg.norm(v - (v @ mb.axis) * mb.axis)) < c.center
+    if ma.kind == "sphere":
+        return (
+            abs(ma.radius - mb.radius) < c.radius
+            and np.linalg.norm(ma.center - mb.center) < c.center
+        )
+    # boxes: the same size along matching axes, centres close
+    R = np.abs(ma.rotation.T @ mb.rotation)
+    if np.any(R.max(axis=1) < np.cos(np.radians(c.axis_angle_deg))):
+        return False
+    matched = mb.extent[R.argmax(axis=1)]
+    return bool(
+        np.all(np.abs(ma.extent - matched) < c.extent + 0.3 * np.minimum(ma.extent, matched))
+    )
+
+
+def voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
+    """One int64 per voxel (21 bits per axis, ±10 km at 1 cm)."""
+    k = np.floor(points / voxel).astype(np.int64) + (1 << 20)
+    return (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+
+
+def downsample(points: np.ndarray, voxel: float, cap: int = MAX_POINTS) -> np.ndarray:
+    """One point per voxel (the first), at most ``cap`` (evenly spread)."""
+    _, first = np.unique(voxel_keys(points, voxel), return_index=True)
+    out = points[np.sort(first)]
+    if len(out) > cap:
+        out = out[np.linspace(0, len(out) - 1, cap).astype(int)]
+    return out.astype(np.float32)
+
+
+def _frame_obb(points: np.ndarray, R: np.ndarray) -> Obb:
+    local = points @ R
+    lo, hi = local.min(0), local.max(0)
+    return Obb(center=R @ ((lo + hi) / 2), rotation=R, extent=hi - lo)
+
+
+def _circle(q: np.ndarray, r0: float) -> tuple[np.ndarray, float]:
+    """Geometric circle fit (Gauss-Newton from the origin and r0); falls back to them."""
+    c, r = np.zeros(2), r0
+    for _ in range(10):
+        d = q - c
+        dist = np.maximum(np.linalg.norm(d, axis=1), 1e-9)
+        J = np.column_stack([-d / dist[:, None], -np.ones(len(q))])
+        try:
+            step = np.linalg.solve(J.T @ J, J.T @ (r - dist))
+        except np.linalg.LinAlgError:
+            return np.zeros(2), r0
+        c, r = c + step[:2], r + step[2]
+        if np.abs(step).max() < 1e-6:
+            break
+    if not (0 < r < 4 * r0) or np.linalg.norm(c) > 2 * r0:
+        return np.zeros(2), r0
+    return c, float(r)
+
+
+def refit(base: Primitive, points: np.ndarray, pid: int) -> Primitive:
+    """``base``'s primitive refitted to a merged point set (its kind and axes kept)."""
+    m = base.model
+    R = base.obb.rotation
+    if m.kind == "plane":
+        c = points.mean(0)
+        _, _, vt = np.linalg.svd(points - c, full_matrices=False)
+        n = vt[2] if vt[2] @ m.normal >= 0 else -vt[2]
+        a1 = R[:, 0] - (R[:, 0] @ n) * n
+        a1 /= np.linalg.norm(a1)
+        R = np.column_stack([a1, np.cross(n, a1), n])
+        model = PlaneModel(normal=n, d=float(-n @ c))
+    elif m.kind == "cylinder":
+        # the axis is kept; centre and radius from a circle fit of all the points seen so far
+        e1, e2 = R[:, 0], R[:, 1]
+        q = np.column_stack([(points - m.center) @ e1, (points - m.center) @ e2])
+        c2, radius = _circle(q, m.radius)
+        t = (points - m.center) @ m.axis
+        center = m.center + c2[0] * e1 + c2[1] * e2 + m.axis * (t.max() + t.min()) / 2
+        model = CylinderModel(center=center, axis=m.axis, radius=radius, height=float(np.ptp(t)))
+        obb = Obb(center=center, rotation=R, extent=np.array([2 * radius, 2 * radius, np.ptp(t)]))
+        return base.model_copy(
+            update={"id": pid, "model": model, "obb": obb, "inlier_count": len(points)}
+        )
+    elif m.kind == "sphere":
+        model = m
+    else:
+        obb = _frame_obb(points, m.rotation)
+        model = BoxModel(
+            center=obb.center, rotation=m.rotation, extent=np.maximum(obb.extent, m.extent)
+        )
+        obb = Obb(center=obb.center, rotation=m.rotation, extent=model.extent)
+        return base.model_copy(
+            update={"id": pid, "model": model, "obb": obb, "inlier_count": len(points)}
+        )
+    obb = _frame_obb(points, R) if m.kind == "plane" else base.obb
+    return base.model_copy(
+        update={"id": pid, "model": model, "obb": obb, "inlier_count": len(points)}
+    )
+
+
+def in_frustum(obb: Obb, obs: SceneObservation) -> bool:
+    """Is the OBB's centre (or a corner) inside the camera's field of view and range?"""
+    K, T = obs.intrinsics, obs.T_world_camera
+    signs = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)] + [[0, 0, 0]])
+    pts = obb.center + (signs * obb.extent / 2) @ obb.rotation.T
+    cam = (pts - T[:3, 3]) @ T[:3, :3]
+    z = cam[:, 2]
+    ok = (z > 0.05) & (z < obs.depth_max + 0.5)
+    u = K.fx * cam[:, 0] / np.where(ok, z, 1) + K.cx
+    v = K.fy * cam[:, 1] / np.where(ok, z, 1) + K.cy
+    return bool(np.any(ok & (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height)))
+
+
+# -- the memory ---------------------------------------------------------------------------------
+
+
+class Fusion:
+    """The fused scene: primitives with their points, support edges with occ(e)."""
+
+    def __init__(self, config: FusionConfig | None = None) -> None:
+        self.config = config or FusionConfig()
+        self.prims: dict[int, MemoryPrimitive] = {}
+        self.occ: dict[tuple[int, int], int] = {}
+        self.next_id = 0
+        self.n_views = 0
+        self.version = 0
+        self.last = Update()
+
+    def _new_id(self) -> int:
+        self.next_id += 1
+        return self.next_id - 1
+
+    def _merge_into(self, mem: MemoryPrimitive, points: np.ndarray) -> bool:
+        """Merge points into a memory primitive; True when that changed it (its box moved or
+        grew by more than ``changed``): a re-observation that adds nothing is no change."""
+        merged = downsample(np.concatenate([mem.points, points]), self.config.voxel)
+        before = mem.primitive.obb
+        mem.primitive = refit(mem.primitive, merged.astype(np.float64), mem.id)
+        mem.points = merged
+        mem.views += 1
+        after = mem.primitive.obb
+        moved = np.linalg.norm(after.center - before.center)
+        grown = np.abs(np.sort(after.extent) - np.sort(before.extent)).max()
+        return bool(max(moved, grown) > self.config.changed)
+
+    def update(self, obs: SceneObservation) -> Update:
+        """Fuse one view (Algorithm 2), then combine its support graph."""
+        c = self.config
+        result = Update()
+        visible = [m for m in self.prims.values() if in_frustum(m.primitive.obb, obs)]
+        floor = self._floor_height(obs)
+        if floor is not None:  # every floor piece takes part, seen now or not
+            visible += [
+                m
+                for m in self.prims.values()
+                if m not in visible and _on_floor(m.primitive, floor, c)
+            ]
+        for phi in obs.primitives:
+            pts = phi.inliers.astype(np.float64)
+            outcome, target = "add", None
+            best = 0.0
+            for psi in visible:
+                if psi.id not in self.prims:
+                    continue
+                if (
+                    floor is not None
+                    and _on_floor(phi, floor, c)
+                    and _on_floor(psi.primitive, floor, c)
+                ):
+                    outcome, target, best = "same", psi, 1.0  # the floor is one plane
+                    break
+                # pieces of a large plane join across small gaps
+                reach = c.plane_gap if _large_plane(phi, psi.primitive, c) else c.obb_margin
+                if not obbs_intersect(psi.primitive.obb, phi.obb, reach):
+                    continue
+                kinds = {phi.model.kind, psi.primitive.model.kind}
+                if kinds == {"box", "plane"}:  # a face seen alone, and the box it belongs to
+                    in_new = inlier(pts, psi.primitive.obb, c.obb_margin)
+                    in_old = inlier(psi.points, phi.obb, c.obb_margin)
+                    if phi.model.kind == "plane" and in_new > c.lambda_o:
+                        decision = "covered"
+                    elif psi.primitive.model.kind == "plane" and in_old > c.lambda_o:
+                        decision = "replace"
+                    else:
+                        continue
+                    if outcome == "add" or max(in_new, in_old) > best:
+                        outcome, target, best = decision, psi, max(in_new, in_old)
+                    continue
+                if not compare_models(phi, psi.primitive, c):
+                    continue
+                in_new = inlier(pts, psi.primitive.obb, c.obb_margin)
+                in_old = inlier(psi.points, phi.obb, c.obb_margin)
+                if in_new > c.lambda_o and in_old > c.lambda_o:
+                    decision = "same"
+                elif in_new > c.lambda_o and in_old < c.lambda_p:
+                    decision = "covered"
+                elif in_old > c.lambda_o and in_new < c.lambda_p:
+                    decision = "replace"
+                elif phi.model.kind == "plane" and max(in_new, in_old) < c.lambda_o:
+                    decision = "same"  # a piece of the same plane
+                else:
+                    continue  # partial overlap: both survive
+                score = max(in_new, in_old)
+                if outcome == "add" or score > best:
+                    outcome, target, best = decision, psi, score
+            if outcome in ("same", "covered"):
+                if self._merge_into(target, pts) and outcome == "same":
+                    result.modified += 1
+                result.mapping[phi.id] = target.id
+                continue
+            mid = self._new_id()
+            mem = MemoryPrimitive(mid, phi.model_copy(update={"id": mid}), downsample(pts, c.voxel))
+            if outcome == "replace":
+                old = self.prims.pop(target.id)
+                mem.points = downsample(np.concatenate([mem.points, old.points]), c.voxel)
+                mem.primitive = refit(mem.primitive, mem.points.astype(np.float64), mid)
+                mem.views = old.views + 1
+                self._rename_edges(old.id, mid)
+                for k, v in result.mapping.items():
+                    if v == old.id:
+                        result.mapping[k] = mid
+                result.removed += 1
+            self.prims[mid] = mem
+            result.mapping[phi.id] = mid
+            result.added += 1
+        self._combine_support(obs, result.mapping)
+        self.n_views += 1
+        self.version += 1
+        self.last = result
+        return result
+
+    def _floor_height(self, obs: SceneObservation) -> float | None:
+        """Height of the lowest level plane known (memory or this view): the floor."""
+        heights = [
+            -p.model.d / p.model.normal[2]
+            for p in [m.primitive for m in self.prims.values()] + list(obs.primitives)
+            if p.model.kind == "plane" and abs(p.model.normal[2]) > np.cos(np.radians(10))
+        ]
+        return min(heights) if heights else None
+
+    def _rename_edges(self, old: int, new: int) -> None:
+        for (a, b), n in list(self.occ.items()):
+            if old in (a, b):
+                del self.occ[a, b]
+                key = (new if a == old else a, new if b == old else b)
+                if key[0] != key[1]:
+                    self.occ[key] = max(self.occ.get(key, 0), n)
+
+    def _combine_support(self, obs: SceneObservation, mapping: dict[int, int]) -> None:
+        seen = set()
+        for e in obs.support_edges:
+            a, b = mapping.get(e.supporter), mapping.get(e.supported)
+            if a is not None and b is not None and a != b:
+                seen.add((a, b))
+        if self.config.mode == "pc":
+            self.occ = dict.fromkeys(seen, 1)
+            return
+        for key in seen:
+            self.occ[key] = self.occ.get(key, 0) + 1
+        for key in list(self.occ):
+            if key[0] not in self.prims or key[1] not in self.prims:
+                del self.occ[key]
+
+    # -- the model as a message ---------------------------------------------------------------
+
+    def unstable(self) -> tuple[int | None, list[int]]:
+        """ρ (the lowest primitive) and the primitives with no support chain to the ground."""
+        if not self.prims:
+            return None, []
+        low = {
+            i: m.primitive.obb.center[2]
+            - np.abs(m.primitive.obb.rotation[2]) @ m.primitive.obb.extent / 2
+            for i, m in self.prims.items()
+        }
+        root = min(low, key=low.get)
+        ground = {root} | {
+            i
+            for i, m in self.prims.items()
+            if self._level_area(m.primitive) >= self.config.ground_area
+        }
+        supports: dict[int, list[int]] = {}
+        for a, b in self.occ:
+            supports.setdefault(a, []).append(b)
+        stable, queue = set(ground), deque(ground)
+        while queue:
+            for t in supports.get(queue.popleft(), []):
+                if t not in stable:
+                    stable.add(t)
+                    queue.append(t)
+        return root, sorted(set(self.prims) - stable)
+
+    @staticmethod
+    def _level_area(p: Primitive) -> float:
+        R, e = p.obb.rotation, p.obb.extent
+        k = int(np.argmax(np.abs(R[2])))
+        if abs(R[2, k]) < np.cos(np.radians(15)):
+            return 0.0
+        return float(np.prod(np.delete(e, k)))
+
+    def spatial_edges(self) -> list[tuple[int, int]]:
+        ids = sorted(self.prims)
+        return [
+            (a, b)
+            for i, a in enumerate(ids)
+            for b in ids[i + 1 :]
+            if obbs_intersect(
+                self.prims[a].primitive.obb, self.prims[b].primitive.obb, self.config.epsilon
+            )
+        ]
+
+    def scene_model(self, seq: int = 0, stamp: float = 0.0) -> SceneModel:
+        root, unstable = self.unstable()
+        prims = []
+        for i in sorted(self.prims):
+            m = self.prims[i]
+            inliers = (
+                m.points
+                if len(m.points) <= 2000
+                else m.points[np.linspace(0, len(m.points) - 1, 2000).astype(int)]
+            )
+            prims.append(
+                m.primitive.model_copy(update={"id": i, "inliers": inliers.astype(np.float32)})
+            )
+        return SceneModel(
+            seq=seq,
+            stamp=stamp,
+            model_version=self.version,
+            n_views=self.n_views,
+            fusion=self.config.mode,
+            primitives=prims,
+            spatial_edges=[SpatialEdge(a=a, b=b) for a, b in self.spatial_edges()],
+            support_edges=[
+                SupportEdge(supporter=a, supported=b, occ=n)
+                for (a, b), n in sorted(self.occ.items())
+            ],
+            root_id=root,
+            unstable_ids=unstable,
+            added=self.last.added,
+            modified=self.last.modified,
+            removed=self.last.removed,
+        )

@@ -1,0 +1,123 @@
+"""Algorithm 2 on synthetic views: what is seen twice stays one primitive, pieces of one large
+plane become one, partly overlapping primitives both survive (λ_p), and occ(e) counts the views
+an edge was seen in."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from services.scene_memory.fusion import Fusion, FusionConfig, inlier
+from tests.scene_memory.builders import box, camera_above, cylinder, observation, plane
+
+FLOOR = dict(x=(-0.3, 2.1), y=(-1.0, 1.0), z=0.0)
+
+
+def kinds(fusion: Fusion) -> list[str]:
+    return sorted(m.primitive.model.kind for m in fusion.prims.values())
+
+
+def test_one_cylinder_seen_from_two_overlapping_views_stays_one():
+    fusion = Fusion()
+    first = fusion.update(
+        observation(0, [plane(0, **FLOOR), cylinder(1, (0.8, 0.1, 0), 0.04, 0.2, 0.0)])
+    )
+    assert (first.added, first.modified, first.removed) == (2, 0, 0)
+    # from 60° further round: a different half of the mantle, about a third of it shared
+    second = fusion.update(
+        observation(1, [plane(0, **FLOOR), cylinder(1, (0.8, 0.1, 0), 0.041, 0.2, np.pi / 3)])
+    )
+    assert second.added == 0 and second.removed == 0
+    assert kinds(fusion) == ["cylinder", "plane"]
+    (cyl,) = [m for m in fusion.prims.values() if m.primitive.model.kind == "cylinder"]
+    assert cyl.views == 2
+    # the refit from both halves: radius and axis within 5 mm of the truth
+    assert abs(cyl.primitive.model.radius - 0.04) < 0.005
+    assert np.linalg.norm(cyl.primitive.model.center[:2] - [0.8, 0.1]) < 0.005
+
+
+def test_a_large_plane_seen_in_three_parts_is_covered_by_one():
+    fusion = Fusion()
+    parts = [(0.0, 0.7), (0.6, 1.3), (1.25, 1.8)]  # overlapping and touching pieces
+    for i, x in enumerate(parts):
+        fusion.update(observation(i, [plane(0, **FLOOR), plane(1, x, (-0.4, 0.4), 0.75)]))
+    tables = [m for m in fusion.prims.values() if abs(m.primitive.obb.center[2] - 0.75) < 0.01]
+    assert len(tables) == 1, kinds(fusion)
+    top = tables[0].primitive
+    assert len(fusion.prims) == 2  # and the floor stayed one too
+    assert abs(top.obb.extent[0] - 1.8) < 0.03 and abs(top.obb.extent[1] - 0.8) < 0.03
+    assert abs(top.obb.center[0] - 0.9) < 0.02
+    assert fusion.last.added == 0 and fusion.last.modified == 1
+
+
+def test_partly_overlapping_primitives_both_survive():
+    fusion = Fusion()
+    a = box(1, (0.80, 0.0, 0.80), (0.10, 0.10, 0.10))
+    b = box(2, (0.85, 0.0, 0.80), (0.10, 0.10, 0.10))  # half of a's width further on
+    c = FusionConfig()
+    shared_ab = inlier(b.inliers.astype(float), a.obb, c.obb_margin)
+    shared_ba = inlier(a.inliers.astype(float), b.obb, c.obb_margin)
+    assert c.lambda_p < shared_ab < c.lambda_o and c.lambda_p < shared_ba < c.lambda_o
+    fusion.update(observation(0, [plane(0, **FLOOR), a]))
+    update = fusion.update(observation(1, [plane(0, **FLOOR), b]))
+    assert kinds(fusion) == ["box", "box", "plane"]
+    assert update.added == 1 and update.removed == 0
+
+
+def test_a_piece_covered_by_a_larger_primitive_is_absorbed_not_added():
+    fusion = Fusion()
+    fusion.update(observation(0, [plane(0, **FLOOR), plane(1, (0.4, 1.4), (-0.4, 0.4), 0.75)]))
+    update = fusion.update(
+        observation(1, [plane(0, **FLOOR), plane(1, (0.5, 0.7), (-0.1, 0.1), 0.75)])
+    )
+    assert len(fusion.prims) == 2 and update.added == 0 and update.removed == 0
+    table = fusion.prims[update.mapping[1]].primitive
+    assert np.allclose(table.obb.extent[:2], [1.0, 0.8], atol=0.02)
+
+
+def test_occ_counts_an_edge_seen_in_k_of_n_views():
+    fusion = Fusion()
+    seen = [True, False, True, True, False, True, False]  # k = 4 of n = 7
+    for i, with_edge in enumerate(seen):
+        side = 0.3 * i
+        prims = [
+            plane(0, **FLOOR),
+            plane(1, (0.4, 1.4), (-0.4, 0.4), 0.75),
+            cylinder(2, (0.9, 0.0, 0.75), 0.04, 0.2, side),
+        ]
+        edges = [(0, 1), (1, 2)] if with_edge else [(0, 1)]
+        fusion.update(observation(i, prims, edges, T=camera_above(0.9 + 0.02 * i)))
+    scene = fusion.scene_model()
+    assert scene.n_views == 7 and len(scene.primitives) == 3
+    by_kind = {p.model.kind: p.id for p in scene.primitives if p.model.kind == "cylinder"}
+    table = next(p.id for p in scene.primitives if abs(p.obb.center[2] - 0.75) < 0.01)
+    floor = next(p.id for p in scene.primitives if abs(p.obb.center[2]) < 0.01)
+    occ = {(e.supporter, e.supported): e.occ for e in scene.support_edges}
+    assert occ == {(floor, table): 7, (table, by_kind["cylinder"]): 4}
+    assert scene.unstable_ids == []
+
+
+def test_sg_keeps_edges_that_pc_forgets():
+    """pc re-extracts the graph from the registered cloud each time: only the latest view's
+    edges; sg keeps every edge with its count."""
+    graphs = {}
+    for mode in ("sg", "pc"):
+        fusion = Fusion(FusionConfig(mode=mode))
+        prims = [
+            plane(0, **FLOOR),
+            plane(1, (0.4, 1.4), (-0.4, 0.4), 0.75),
+            cylinder(2, (0.9, 0.0, 0.75), 0.04, 0.2, 0.0),
+        ]
+        fusion.update(observation(0, prims, [(0, 1), (1, 2)]))
+        fusion.update(observation(1, prims, [(0, 1)]))
+        graphs[mode] = sorted(e.occ for e in fusion.scene_model().support_edges)
+    assert graphs == {"sg": [1, 2], "pc": [1]}
+
+
+def test_what_is_out_of_view_is_not_touched():
+    fusion = Fusion()
+    far = cylinder(1, (0.8, 0.1, 0), 0.04, 0.2, 0.0)
+    fusion.update(observation(0, [far], T=camera_above(0.9)))
+    # the camera 5 m away sees a cylinder of the same size: a different one, not a merge
+    other = cylinder(1, (5.8, 0.1, 0), 0.04, 0.2, 0.0)
+    update = fusion.update(observation(1, [other], T=camera_above(5.9)))
+    assert update.added == 1 and len(fusion.prims) == 2
