@@ -111,10 +111,14 @@ class Scores:
 
 
 def score_primitives(
-    segments: dict[str, np.ndarray], primitives: list[Primitive], delta: float = DELTA
+    segments: dict[str, np.ndarray],
+    primitives: list[Primitive],
+    delta: float = DELTA,
+    scope: set[str] | None = None,
 ) -> Scores:
     """InlierIndex (Eq. 3.11) and OverlappingIndex (Eq. 3.12) of ``primitives`` against the
-    labelled ground-truth points, and the primitive ↔ body maps."""
+    labelled ground-truth points of the bodies in ``scope`` (default: all), and the
+    primitive ↔ body maps (over all bodies)."""
     names = list(segments)
     if not names:
         return Scores(0.0, 0.0, {}, {})
@@ -137,9 +141,12 @@ def score_primitives(
     if not primitives:
         return Scores(0.0, 0.0, {}, {})
     match = {n: primitives[int(np.argmax(covered[i]))].id for i, n in enumerate(names)}
+    rows = [i for i, n in enumerate(names) if scope is None or n in scope] or list(
+        range(len(names))
+    )
     return Scores(
-        inlier_index=float(covered.max(axis=1).mean()),
-        overlapping_index=float(jaccard.max(axis=1).mean()),
+        inlier_index=float(covered[rows].max(axis=1).mean()),
+        overlapping_index=float(jaccard[rows].max(axis=1).mean()),
         match=match,
         bodies=bodies,
     )

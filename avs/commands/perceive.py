@@ -82,7 +82,9 @@ def _perceive(args: argparse.Namespace) -> int:
     c = perception.config
     obs = observation(result, frame, 0, "cli", c.depth_max, c.stride)
     segments = evaluation.labelled_points(gt, frame.depth, frame.intrinsics, frame.T_world_camera)
-    scores = evaluation.score_primitives(segments, obs.primitives)
+    scores = evaluation.score_primitives(
+        segments, obs.primitives, scope=evaluation.bodies_in_roi(gt)
+    )
     support = evaluation.score_support(
         gt, [(e.supporter, e.supported) for e in obs.support_edges], scores.bodies
     )

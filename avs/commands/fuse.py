@@ -1,0 +1,235 @@
+"""``avs fuse``: drive the robot through a scripted camera path in one process (sim, perception
+and scene memory as libraries, no Zenoh), fuse every view, and write ``DIR/metrics.json`` and
+``DIR/fusion.png`` (InlierIndex / OverlappingIndex and the modification counts over the views,
+as thesis Fig. 3.10 and 3.11).
+
+Paths: ``orbit`` (an arc around the roi's centre at the start distance, views that would put
+the platform into furniture skipped), ``line`` (a sideways line through robot_start, facing
+the roi), or a JSON file ``[[x, y], ...]`` of platform positions (each looks at the roi).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "fuse",
+        help="fuse the views of a scripted camera path; metrics and plot",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--scene", default="kitchen")
+    p.add_argument("--robot", default="armar6")
+    p.add_argument("--path", default="orbit", help="orbit | line | FILE (JSON list of [x, y])")
+    p.add_argument("--views", type=int, default=20)
+    p.add_argument("--fusion", choices=["pc", "sg", "pc+sg"], default="sg")
+    p.add_argument("--voxel", type=float, default=0.01, help="occupancy voxel, m")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.set_defaults(func=_fuse)
+
+
+@dataclass
+class ViewMetrics:
+    view: int
+    inlier_index: float
+    overlapping_index: float
+    added: int
+    modified: int
+    removed: int
+    unknown_voxels: int
+    integrate_ms: float
+    fuse_ms: float
+    base: list[float]
+
+
+def path_bases(world, path: str, views: int, centre: np.ndarray) -> list[tuple[float, float]]:
+    """Candidate platform positions of a path (before the feasibility check)."""
+    sx, sy, _ = world.info.robot_start
+    if path == "orbit":
+        r = math.hypot(sx - centre[0], sy - centre[1])
+        a0 = math.atan2(sy - centre[1], sx - centre[0])
+        span = math.radians(240)
+        angles = a0 + np.linspace(-span / 2, span / 2, views * 2)
+        return [(centre[0] + r * math.cos(a), centre[1] + r * math.sin(a)) for a in angles]
+    if path == "line":
+        heading = math.atan2(centre[1] - sy, centre[0] - sx)
+        side = np.array([-math.sin(heading), math.cos(heading)])
+        return [tuple(np.array([sx, sy]) + t * side) for t in np.linspace(-1.5, 1.5, views * 2)]
+    points = json.loads(Path(path).read_text())
+    return [(float(p[0]), float(p[1])) for p in points]
+
+
+def feasible(world) -> bool:
+    """The platform does not overlap the scene (checked with MuJoCo's contacts)."""
+    m, d = world.model, world.data
+    for c in d.contact[: d.ncon]:
+        names = [m.body(m.geom_bodyid[g]).name for g in c.geom]
+        if c.dist < -0.001 and sum(n.startswith("robot/") for n in names) == 1:
+            return False
+    return True
+
+
+def spread(items: list, n: int) -> list:
+    if len(items) <= n:
+        return items
+    return [items[i] for i in np.linspace(0, len(items) - 1, n).round().astype(int)]
+
+
+def run_fusion(args: argparse.Namespace, progress=None):
+    """The fusion run itself; returns (per-view metrics, the memory, the ground truth)."""
+    from avs import evaluation
+    from avs.commands.perceive import look_target
+    from services.perception.pipeline import Perception, PerceptionConfig, observation
+    from services.scene_memory.fusion import FusionConfig
+    from services.scene_memory.memory import MemoryConfig, SceneMemory, registered_view
+    from services.scene_memory.occupancy import OccupancyConfig
+    from services.sim import capture, ground_truth
+    from services.sim.render import CameraRenderer
+    from services.sim.robots import ROBOTS
+    from services.sim.world import World
+
+    world = World(args.scene, ROBOTS[args.robot])
+    centre = look_target(world)
+    roi = world.info.roi
+    lo = (roi[0] - 1.0) if roi is not None else centre - 3
+    hi = (roi[1] + 1.0) if roi is not None else centre + 3
+    lo[2], hi[2] = -0.05, max(hi[2], 2.2)
+    memory = SceneMemory(
+        MemoryConfig(
+            bounds_min=tuple(lo),
+            bounds_max=tuple(hi),
+            fusion=FusionConfig(mode=args.fusion),
+            occupancy=OccupancyConfig(voxel=args.voxel),
+        )
+    )
+    renderer = CameraRenderer(world.model, 640, 480)
+    perception = Perception()
+    registered = Perception(PerceptionConfig(stride=1))
+    camera = world.robot.default_cameras[0]
+    rng = np.random.default_rng(args.seed)
+    edges, closure = ground_truth.support_graph(world.model, world.data, world.info)
+    bases = []
+    for x, y in path_bases(world, args.path, args.views, centre):
+        world.place(base=(x, y, math.atan2(centre[1] - y, centre[0] - x)))
+        if feasible(world):
+            bases.append((x, y))
+    bases = spread(bases, args.views)
+    segments_seen = []
+    metrics: list[ViewMetrics] = []
+    gt = None
+    for i, (x, y) in enumerate(bases):
+        world.place(base=(x, y, math.atan2(centre[1] - y, centre[0] - x)))
+        world.look_at(centre)
+        T, stamp = capture.snapshot(world, renderer, camera)
+        frame = capture.frame(world, renderer, camera, T, stamp, i, rng)
+        labels, seg = capture.segmentation(world, renderer, camera)
+        gt = capture.ground_truth_message(world, edges, closure, camera, labels, seg)
+        memory.integrate(frame)
+        integrate_ms = memory.timings_ms["integrate_ms"]
+        if args.fusion == "sg":
+            result = perception.perceive(
+                frame.depth, frame.rgb, frame.intrinsics, frame.T_world_camera
+            )
+            obs = observation(result, frame, i, "fuse", 3.0, perception.config.stride)
+        else:
+            view = registered_view(memory, frame)
+            result = registered.perceive(view.depth, None, view.intrinsics, view.T_world_camera)
+            obs = observation(result, view, i, "fuse", 3.0, 1)
+        update = memory.fuse(obs)
+        segments_seen.append(
+            evaluation.labelled_points(gt, frame.depth, frame.intrinsics, frame.T_world_camera)
+        )
+        scene = memory.scene(i)
+        scores = evaluation.score_primitives(
+            evaluation.merge_points(segments_seen),
+            scene.primitives,
+            scope=evaluation.bodies_in_roi(gt),
+        )
+        unknown = (
+            memory.occupancy.counts(*roi)[0] if roi is not None else memory.occupancy.counts()[0]
+        )
+        metrics.append(
+            ViewMetrics(
+                i,
+                scores.inlier_index,
+                scores.overlapping_index,
+                update.added,
+                update.modified,
+                update.removed,
+                int(unknown),
+                integrate_ms,
+                memory.timings_ms["fuse_ms"],
+                [x, y],
+            )
+        )
+        if progress:
+            progress(i + 1, len(bases), metrics[-1])
+    renderer.close()
+    return metrics, memory, gt
+
+
+def plot(metrics: list[ViewMetrics], path: Path, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    views = [m.view + 1 for m in metrics]
+    fig, (a, b) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    a.plot(views, [m.inlier_index for m in metrics], "o-", label="InlierIndex (Eq. 3.11)")
+    a.plot(views, [m.overlapping_index for m in metrics], "s-", label="OverlappingIndex (Eq. 3.12)")
+    a.set_ylim(0, 1.02)
+    a.set_ylabel("index")
+    a.legend(loc="lower right")
+    a.set_title(title)
+    b.plot(views, [m.added for m in metrics], "o-", label="added")
+    b.plot(views, [m.modified for m in metrics], "s-", label="modified")
+    b.plot(views, [m.removed for m in metrics], "^-", label="removed")
+    b.set_xlabel("view")
+    b.set_ylabel("primitives")
+    b.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def _fuse(args: argparse.Namespace) -> int:
+    from services.sim.scene import SceneError
+
+    args.out.mkdir(parents=True, exist_ok=True)
+
+    def progress(i: int, n: int, m: ViewMetrics) -> None:
+        bar = "#" * int(30 * i / n)
+        print(
+            f"\r[{bar:<30}] view {i}/{n}  InlierIndex {m.inlier_index:.2f}  "
+            f"Overlapping {m.overlapping_index:.2f}  unknown {m.unknown_voxels}",
+            end="" if i < n else "\n",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    try:
+        metrics, _, _ = run_fusion(args, progress)
+    except SceneError as e:
+        print(f"avs fuse: {e}", file=sys.stderr)
+        return 2
+    out = {
+        "scene": args.scene,
+        "path": args.path,
+        "fusion": args.fusion,
+        "views": [asdict(m) for m in metrics],
+    }
+    (args.out / "metrics.json").write_text(json.dumps(out, indent=2))
+    plot(metrics, args.out / "fusion.png", f"{args.scene}: {args.fusion} fusion, {args.path}")
+    print(f"wrote {args.out / 'metrics.json'} and {args.out / 'fusion.png'}")
+    return 0

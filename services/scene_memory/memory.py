@@ -1,0 +1,126 @@
+"""What the robot knows of the scene across views: the fused primitives (Algorithm 2) with
+their support graph, the occupancy map, and the registered point cloud. Pure: arrays and wire
+messages in, state out; the node adds transport and persistence."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from schemas import CameraIntrinsics, PointCloud, RgbdFrame, SceneModel, SceneObservation
+from services.scene_memory.fusion import Fusion, FusionConfig, Update, voxel_keys
+from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap
+
+MAX_CLOUD = 400_000  # points the registered cloud keeps
+
+
+@dataclass
+class MemoryConfig:
+    bounds_min: tuple[float, float, float] = (-1.0, -2.5, -0.05)
+    bounds_max: tuple[float, float, float] = (4.0, 2.5, 2.2)
+    cloud_voxel: float = 0.01
+    depth_min: float = 0.35
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+    occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
+
+
+class SceneMemory:
+    def __init__(self, config: MemoryConfig | None = None) -> None:
+        self.config = config or MemoryConfig()
+        c = self.config
+        self.fusion = Fusion(c.fusion)
+        self.occupancy = OccupancyMap(np.array(c.bounds_min), np.array(c.bounds_max), c.occupancy)
+        self.cloud = np.zeros((0, 3), np.float32)
+        self.colours = np.zeros((0, 3), np.uint8)
+        self.timings_ms: dict[str, float] = {}
+
+    def integrate(self, frame: RgbdFrame) -> int:
+        """Add a depth frame to the occupancy map and the registered cloud."""
+        if frame.depth is None:
+            return 0
+        t0 = time.perf_counter()
+        K, T = frame.intrinsics, frame.T_world_camera
+        max_range = min(self.config.occupancy.max_range, frame.depth_max or np.inf)
+        n = self.occupancy.integrate_depth(
+            frame.depth, K.fx, K.fy, K.cx, K.cy, T, self.config.depth_min, max_range
+        )
+        t1 = time.perf_counter()
+        z = frame.depth[::2, ::2]
+        v, u = np.nonzero((z > self.config.depth_min) & (z <= max_range))
+        d = z[v, u].astype(np.float64)
+        cam = np.column_stack([(2 * u - K.cx) / K.fx * d, (2 * v - K.cy) / K.fy * d, d])
+        pts = cam @ T[:3, :3].T + T[:3, 3]
+        rgb = (
+            frame.rgb[::2, ::2][v, u]
+            if frame.rgb is not None
+            else np.zeros((len(pts), 3), np.uint8)
+        )
+        merged = np.concatenate([self.cloud, pts.astype(np.float32)])
+        colours = np.concatenate([self.colours, rgb])
+        _, first = np.unique(voxel_keys(merged, self.config.cloud_voxel), return_index=True)
+        first = np.sort(first)[-MAX_CLOUD:]
+        self.cloud, self.colours = merged[first], colours[first]
+        self.timings_ms = {
+            "integrate_ms": (t1 - t0) * 1e3,
+            "cloud_ms": (time.perf_counter() - t1) * 1e3,
+        }
+        return n
+
+    def fuse(self, obs: SceneObservation) -> Update:
+        t0 = time.perf_counter()
+        update = self.fusion.update(obs)
+        self.timings_ms["fuse_ms"] = (time.perf_counter() - t0) * 1e3
+        return update
+
+    def scene(self, seq: int = 0, stamp: float = 0.0) -> SceneModel:
+        return self.fusion.scene_model(seq, stamp)
+
+    def point_cloud(self, seq: int = 0, stamp: float = 0.0, cap: int = 100_000) -> PointCloud:
+        idx = np.linspace(0, len(self.cloud) - 1, min(cap, len(self.cloud))).astype(int)
+        return PointCloud(
+            seq=seq,
+            stamp=stamp,
+            points=self.cloud[idx],
+            colours=self.colours[idx],
+            voxel_size=self.config.cloud_voxel,
+        )
+
+
+def registered_view(
+    memory: SceneMemory, frame: RgbdFrame, width: int = 160, height: int = 120
+) -> RgbdFrame:
+    """The registered cloud seen from ``frame``'s camera: a z-buffered depth image (one pixel
+    per cloud voxel at about 1.5 m) — what ``pc`` re-extracts primitives from."""
+    K, T = frame.intrinsics, frame.T_world_camera
+    s = width / K.width
+    Kr = CameraIntrinsics(
+        width=width,
+        height=height,
+        fx=K.fx * s,
+        fy=K.fy * s,
+        cx=(K.cx + 0.5) * s - 0.5,
+        cy=(K.cy + 0.5) * s - 0.5,
+    )
+    cam = (memory.cloud.astype(np.float64) - T[:3, 3]) @ T[:3, :3]
+    z = cam[:, 2]
+    ok = z > 0.1
+    u = np.round(Kr.fx * cam[ok, 0] / z[ok] + Kr.cx).astype(int)
+    v = np.round(Kr.fy * cam[ok, 1] / z[ok] + Kr.cy).astype(int)
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    depth = np.full(height * width, np.inf)
+    np.minimum.at(depth, v[inside] * width + u[inside], z[ok][inside])
+    depth[~np.isfinite(depth)] = 0
+    rgb = np.zeros((height, width, 3), np.uint8)
+    return RgbdFrame(
+        seq=frame.seq,
+        stamp=frame.stamp,
+        camera="registered",
+        intrinsics=Kr,
+        rgb=rgb,
+        depth=depth.reshape(height, width).astype(np.float32),
+        T_world_camera=T,
+        depth_min=frame.depth_min,
+        depth_max=frame.depth_max,
+    )
