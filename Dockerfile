@@ -16,7 +16,8 @@ RUN apt-get update \
  && apt-get install -y --no-install-recommends \
       libusb-1.0-0 libgl1 libgomp1 libegl1 libegl-mesa0 libgl1-mesa-dri \
  && rm -rf /var/lib/apt/lists/* \
- && useradd --create-home --uid 10001 avs
+ && useradd --create-home --uid 10001 avs \
+ && install -d -o avs -g avs /var/lib/avs/scene_memory
 COPY --from=build /opt/avs /opt/avs
 ENV PATH=/opt/avs/bin:$PATH \
     MUJOCO_GL=egl \

@@ -96,9 +96,13 @@ def test_echo_count_exits_by_itself(router, client, procs):
     assert len(out.splitlines()) == 2
 
 
-def test_up_runs_a_router_that_clients_reach_and_stops_on_sigint(procs):
+def test_up_runs_a_router_that_clients_reach_and_stops_on_sigint(procs, tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    up = procs.start([*AVS, "up", "--listen", endpoint], stdout=subprocess.PIPE, text=True)
+    up = procs.start(
+        [*AVS, "up", "--listen", endpoint, "--data-dir", str(tmp_path)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     ready = json.loads(up.stdout.readline())
     assert ready["router"] == endpoint
     with zenoh.open(session_config("client", connect=[endpoint])) as session:
@@ -116,10 +120,13 @@ def test_up_refuses_a_busy_port_with_one_line(router):
     assert "Traceback" not in out.stderr
 
 
-def test_run_reports_and_exits_zero():
+def test_run_reports_and_exits_zero(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     out = subprocess.run(
-        [*AVS, "run", "--listen", endpoint], capture_output=True, text=True, timeout=120
+        [*AVS, "run", "--listen", endpoint, "--data-dir", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)

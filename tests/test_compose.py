@@ -71,3 +71,13 @@ def test_the_service_template_is_what_every_service_uses():
     template = COMPOSE["x-avs-service"]
     assert template["build"] == "." and template["environment"]["AVS_CONNECT"] == "tcp/router:7447"
     assert (ROOT / "Dockerfile").is_file()
+
+
+def test_the_scene_memory_keeps_its_data_in_a_named_volume():
+    service = COMPOSE["services"]["scene_memory"]
+    data_dir = service["environment"]["AVS_SCENE_MEMORY_DATA_DIR"]
+    volumes = [v.split(":") for v in service["volumes"]]
+    assert [data_dir] == [target for _, target in volumes]
+    assert {name for name, _ in volumes} <= set(COMPOSE["volumes"])
+    # the image's non-root user owns the mount point, so a new volume is writable
+    assert f"install -d -o avs -g avs {data_dir}" in (ROOT / "Dockerfile").read_text()

@@ -183,6 +183,7 @@ def plot(metrics: list[ViewMetrics], path: Path, title: str) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     views = [m.view + 1 for m in metrics]
     fig, (a, b) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
@@ -196,6 +197,7 @@ def plot(metrics: list[ViewMetrics], path: Path, title: str) -> None:
     b.plot(views, [m.modified for m in metrics], "s-", label="modified")
     b.plot(views, [m.removed for m in metrics], "^-", label="removed")
     b.set_xlabel("view")
+    b.xaxis.set_major_locator(MaxNLocator(integer=True))
     b.set_ylabel("primitives")
     b.legend(loc="upper right")
     fig.tight_layout()

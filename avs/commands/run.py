@@ -10,7 +10,7 @@ import argparse
 import json
 import logging
 
-from avs.commands.up import add_system_arguments, chosen_services
+from avs.commands.up import add_system_arguments, chosen_services, service_env
 from avs.launcher import Supervisor
 from avs.router import RouterError
 from avs.services import SERVICES
@@ -35,7 +35,7 @@ def _run(args: argparse.Namespace) -> int:
     services = chosen_services(args.services)
     names = [s.name for s in services]
     missing = [n for n in EPISODE_SERVICES if n not in names]
-    supervisor = Supervisor(services, args.listen, args.robot, restart=False)
+    supervisor = Supervisor(services, args.listen, args.robot, env=service_env(args), restart=False)
     try:
         supervisor.start()
     except RouterError as e:

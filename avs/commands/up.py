@@ -12,6 +12,7 @@ import json
 import logging
 import signal
 import threading
+from pathlib import Path
 
 from avs.launcher import Supervisor
 from avs.router import DEFAULT_ENDPOINT, RouterError
@@ -35,6 +36,12 @@ def add_system_arguments(parser: argparse.ArgumentParser) -> None:
         + ")",
     )
     parser.add_argument(
+        "--data-dir",
+        type=Path,
+        default=Path("avs-data"),
+        help="where stateful services keep their data, one directory each (default avs-data)",
+    )
+    parser.add_argument(
         "--ready-timeout",
         type=float,
         default=60.0,
@@ -56,6 +63,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_up)
 
 
+def service_env(args: argparse.Namespace) -> dict[str, str]:
+    """Settings the launcher hands to the services: the scene memory's data directory."""
+    return {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
+
+
 def chosen_services(names: str) -> list[ServiceInfo]:
     if not names:
         return existing()
@@ -72,7 +84,9 @@ def chosen_services(names: str) -> list[ServiceInfo]:
 
 def _up(args: argparse.Namespace) -> int:
     services = chosen_services(args.services)
-    supervisor = Supervisor(services, args.listen, args.robot, restart=not args.no_restart)
+    supervisor = Supervisor(
+        services, args.listen, args.robot, env=service_env(args), restart=not args.no_restart
+    )
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

@@ -1,0 +1,27 @@
+"""Settings of the scene memory service (env AVS_SCENE_MEMORY_<FIELD> or --flag)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import ClassVar, Literal
+
+from pydantic import Field
+
+from services.common.config import ServiceSettings
+
+
+class SceneMemorySettings(ServiceSettings):
+    """Fused scene model, support graph with occ(e), occupancy map, registered cloud."""
+
+    SERVICE: ClassVar[str] = "scene_memory"
+
+    data_dir: Path = Field(Path("avs-data/scene_memory"), description="journal and snapshots")
+    fusion: Literal["pc", "sg", "pc+sg"] = Field("sg", description="support-graph combination")
+    camera: str = Field("head_rgbd", description="camera whose depth frames fill the map")
+    voxel: float = Field(0.01, gt=0, description="occupancy voxel size, m")
+    bounds_min: list[float] = Field([-1.0, -2.5, -0.05], description="map's min corner x,y,z")
+    bounds_max: list[float] = Field([4.0, 2.5, 2.2], description="map's max corner x,y,z")
+    roi_min: list[float] | None = Field(None, description="default box of occupancy stats")
+    roi_max: list[float] | None = None
+    max_range: float = Field(3.0, gt=0, description="rays clear space up to this range, m")
+    snapshot_every: int = Field(20, ge=1, description="updates between snapshots")

@@ -1,0 +1,167 @@
+"""The scene memory's node: observations and depth frames in (each journaled before it is
+applied), the fused scene out on every change, and its state on queryables.
+
+In ``pc`` and ``pc+sg`` fusion it also publishes the registered cloud as seen from the last
+frame's camera, on ``sensors/rgbd/registered``: a perception worker run with
+``--camera registered`` turns it into the observations that are fused.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+import numpy as np
+
+from schemas import (
+    BoxQuery,
+    OccupancySlice,
+    OccupancyStats,
+    PointCloud,
+    RgbdFrame,
+    SceneModel,
+    SceneObservation,
+    decode,
+    encode,
+)
+from services.common.node import Node
+from services.scene_memory.config import SceneMemorySettings
+from services.scene_memory.fusion import FusionConfig
+from services.scene_memory.memory import MemoryConfig, SceneMemory, registered_view
+from services.scene_memory.occupancy import OccupancyConfig
+from services.scene_memory.persistence import Store
+
+log = logging.getLogger("avs.scene_memory")
+
+
+def new_memory(s: SceneMemorySettings) -> SceneMemory:
+    return SceneMemory(
+        MemoryConfig(
+            bounds_min=tuple(s.bounds_min),
+            bounds_max=tuple(s.bounds_max),
+            fusion=FusionConfig(mode=s.fusion),
+            occupancy=OccupancyConfig(voxel=s.voxel, max_range=s.max_range),
+        )
+    )
+
+
+class SceneMemoryNode:
+    def __init__(self, node: Node, settings: SceneMemorySettings) -> None:
+        self.node, self.settings = node, settings
+        self.lock = threading.Lock()
+        self.store = Store(settings.data_dir)
+        self.memory, self.n = self._restore()
+        k = node.keys
+        self.out_scene = node.publisher(k.scene())
+        self.out_registered = (
+            node.publisher(k.rgbd("registered")) if settings.fusion != "sg" else None
+        )
+        self.obs_camera = "registered" if settings.fusion != "sg" else settings.camera
+        node.subscribe(k.observation(), SceneObservation, self.on_observation)
+        node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame)
+        node.serve(k.scene(), lambda _r: self.scene())
+        node.serve(k.occupancy("stats"), self.on_stats, BoxQuery)
+        node.serve(k.occupancy("slice"), self.on_slice, BoxQuery)
+        node.serve(k.cloud(), lambda _r: self.cloud())
+
+    def _restore(self) -> tuple[SceneMemory, int]:
+        state, n, records = self.store.load()
+        memory = state if isinstance(state, SceneMemory) else new_memory(self.settings)
+        replayed = 0
+        for number, kind, payload in records:
+            self._apply(memory, kind, payload)
+            n, replayed = number, replayed + 1
+        if state is not None or replayed:
+            log.info(
+                "restored",
+                extra={
+                    "snapshot": state is not None,
+                    "journal": replayed,
+                    "updates": n,
+                    "primitives": len(memory.fusion.prims),
+                },
+            )
+        return memory, n
+
+    @staticmethod
+    def _apply(memory: SceneMemory, kind: str, payload: bytes) -> None:
+        if kind == "frame":
+            memory.integrate(decode(payload, RgbdFrame))
+        else:
+            memory.fuse(decode(payload, SceneObservation))
+
+    def _update(self, kind: str, message) -> None:
+        payload = encode(message)
+        with self.lock:
+            self.n += 1
+            self.store.append(self.n, kind, payload)  # journaled before it is applied
+            self._apply(self.memory, kind, payload)
+            if self.n % self.settings.snapshot_every == 0:
+                self.store.snapshot(self.memory, self.n)
+            for key, value in self.memory.timings_ms.items():
+                self.node.metrics.gauge(key, value)
+
+    def on_frame(self, frame: RgbdFrame) -> None:
+        if frame.depth is None:
+            self.node.drop("no_depth", self.node.keys.rgbd(frame.camera), "frame has no depth")
+            return
+        self._update("frame", frame)
+        if self.out_registered is not None:
+            with self.lock:
+                view = registered_view(self.memory, frame)
+            self.out_registered.put(view)
+
+    def on_observation(self, obs: SceneObservation) -> None:
+        if obs.camera != self.obs_camera:
+            return  # pc fusion takes the registered cloud's observations only
+        self._update("observation", obs)
+        self.out_scene.put(self.scene())
+
+    def scene(self) -> SceneModel:
+        with self.lock:
+            return self.memory.scene(self.n, float(self.n))
+
+    def _box(self, request: BoxQuery | None) -> tuple[np.ndarray, np.ndarray]:
+        if request is not None:
+            return request.box_min, request.box_max
+        s, occ = self.settings, self.memory.occupancy
+        if s.roi_min and s.roi_max:
+            return np.array(s.roi_min), np.array(s.roi_max)
+        return occ.lo, occ.hi
+
+    def on_stats(self, request: BoxQuery | None) -> OccupancyStats:
+        lo, hi = self._box(request)
+        with self.lock:
+            occ = self.memory.occupancy
+            unknown, free, occupied = occ.counts(lo, hi)
+            return OccupancyStats(
+                seq=self.n,
+                voxel_size=occ.voxel,
+                box_min=lo,
+                box_max=hi,
+                unknown=unknown,
+                free=free,
+                occupied=occupied,
+                map_version=occ.version,
+                frames_integrated=occ.frames,
+            )
+
+    def on_slice(self, request: BoxQuery | None) -> OccupancySlice:
+        lo, hi = self._box(request)
+        with self.lock:
+            occ = self.memory.occupancy
+            origin, states = occ.states(lo, hi)
+            return OccupancySlice(
+                seq=self.n,
+                voxel_size=occ.voxel,
+                origin=origin,
+                states=states,
+                map_version=occ.version,
+            )
+
+    def cloud(self) -> PointCloud:
+        with self.lock:
+            return self.memory.point_cloud(self.n)
+
+    def close(self) -> None:
+        self.store.close()
