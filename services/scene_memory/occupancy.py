@@ -283,14 +283,23 @@ class OccupancyMap:
         self._dirty = np.zeros(blocks, np.uint8)
         self._rays = np.zeros((0, 3), np.float64)
 
-    def __getstate__(self) -> dict:  # snapshots leave the scratch buffers out
+    def __getstate__(self) -> dict:
+        """Snapshots hold the known voxels only (a bit mask and their values) and no scratch:
+        a 56 M-voxel map that has seen a few views pickles to a fraction of its 112 MB."""
         state = dict(self.__dict__)
         for k in ("_visited", "_hit", "_dirty", "_rays"):
             state.pop(k)
+        known = state.pop("L") != UNKNOWN
+        state["_known"] = np.packbits(known)
+        state["_values"] = self.L[known]
         return state
 
     def __setstate__(self, state: dict) -> None:
+        known = np.unpackbits(state.pop("_known"), count=math.prod(state["shape"]))
+        values = state.pop("_values")
         self.__dict__.update(state)
+        self.L = np.full(self.shape, UNKNOWN, np.int16)
+        self.L[known.reshape(self.shape).view(bool)] = values
         self._scratch()
 
     @property
