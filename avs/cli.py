@@ -6,10 +6,10 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from avs.commands import echo, fuse, perceive, record, run, schema, sim, up
+from avs.commands import echo, explore, fuse, perceive, record, run, schema, sim, up
 from services.common.log import setup_logging
 
-COMMANDS = (run, up, sim, perceive, fuse, echo, record, schema)
+COMMANDS = (run, explore, up, sim, perceive, fuse, echo, record, schema)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -58,6 +58,7 @@ KEY_TABLE: tuple[KeySpec, ...] = (
     KeySpec("memory/cloud", ("PointCloud",), "queryable", "scene_memory", note="queryable"),
     KeySpec("nbv/candidates", ("ViewCandidates",), "stream", "nbv", "block", "data", False, "per planning step"),
     KeySpec("nbv/next_view", ("NextBestView",), "stream", "nbv", "block", "interactive_low", False, "per planning step"),
+    KeySpec("nbv/plan", ("PlanRequest", "NextBestView"), "queryable", "nbv", note="queryable"),
     KeySpec("gaze/target", ("GazeTarget",), "command", "nbv", "block", "interactive_high", False, "on demand"),
     KeySpec("gaze/egosphere", ("EgoSphereSnapshot",), "stream", "gaze", "drop", "data_low", False, "2-10 Hz"),
     KeySpec("sim/ground_truth", ("GroundTruthQuery", "GroundTruth"), "queryable", "sim", note="queryable"),
@@ -126,6 +127,9 @@ class Keys:
 
     def next_view(self) -> str:
         return self.key("nbv/next_view")
+
+    def plan(self) -> str:
+        return self.key("nbv/plan")
 
     def gaze_target(self) -> str:
         return self.key("gaze/target")

@@ -8,7 +8,7 @@ import numpy as np
 from pydantic import Field
 
 from schemas.arrays import Array, Dim
-from schemas.base import Stamped
+from schemas.base import Message, Stamped
 from schemas.types import Finite, Pose, Rigid, Vec3
 
 
@@ -54,3 +54,17 @@ class NextBestView(Stamped):
     utility: float
     terminate: bool = False
     reason: Literal["", "quality", "max_views", "no_candidates"] = ""
+
+
+class PlanRequest(Message):
+    """A request on ``nbv/plan``: plan step ``step`` from the robot's current pose. ``initial``
+    only aims the head at the view-sphere centre from where the robot stands (the first view);
+    ``visited`` are the platform poses of the views taken so far (for the top-down sampling's
+    largest arc); with ``execute`` the planner also sends the BaseGoal and the HeadCommand."""
+
+    step: int = Field(0, ge=0)
+    initial: bool = False
+    execute: bool = True
+    visited: Annotated[np.ndarray, Array("float64", (None, 3)), Finite()] = Field(
+        default_factory=lambda: np.zeros((0, 3))
+    )

@@ -1,23 +1,16 @@
-"""``avs run``: the main job — one whole exploration episode with every service as a process.
-
-Until the services of the episode (sim, perception, scene_memory, nbv) exist, it starts what
-exists, reports it and exits 0.
-"""
+"""``avs run``: the main job — one whole exploration episode on ``tabletop_occluded`` with the
+defaults (utility strategy, equidistant sampling, sg fusion, at most 10 views), every service
+a local process on a loopback Zenoh router; it prints a short summary and writes the metrics,
+plots and report.html under ``--out`` (default runs/explore)."""
 
 from __future__ import annotations
 
 import argparse
 import json
-import logging
+import sys
+from pathlib import Path
 
-from avs.commands.up import add_system_arguments, chosen_services, service_env
-from avs.launcher import Supervisor
-from avs.router import RouterError
-from avs.services import SERVICES
-
-log = logging.getLogger("avs.run")
-
-EPISODE_SERVICES = ("sim", "perception", "scene_memory", "nbv")
+from avs.commands.explore import run_episode, summary, write_outputs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -27,33 +20,25 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    add_system_arguments(parser)
+    parser.add_argument("--scene", default="tabletop_occluded")
+    parser.add_argument("--views", type=int, default=10)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=Path("runs/explore"))
     parser.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
-    services = chosen_services(args.services)
-    names = [s.name for s in services]
-    missing = [n for n in EPISODE_SERVICES if n not in names]
-    supervisor = Supervisor(services, args.listen, args.robot, env=service_env(args), restart=False)
+    from avs.explore import EpisodeConfig
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    config = EpisodeConfig(scene=args.scene, views=args.views, seed=args.seed, out=args.out)
     try:
-        supervisor.start()
-    except RouterError as e:
-        raise SystemExit(f"avs: {e}") from None
-    try:
-        ready = supervisor.wait_ready(args.ready_timeout) if services else True
-        report = {
-            "router": args.listen,
-            "services": supervisor.report(),
-            "not_implemented": [s.name for s in SERVICES if not s.exists()],
-            "episode": "needs " + ", ".join(missing) if missing else "ready",
-        }
-    finally:
-        supervisor.stop()
-    print(json.dumps(report, indent=2))
-    if missing:
-        log.info(
-            "the exploration episode needs %s; started and stopped what exists",
-            ", ".join(missing),
-        )
-    return 0 if ready else 1
+        result = run_episode(config, "episode")
+    except (RuntimeError, TimeoutError) as e:
+        print(f"avs run: {e}", file=sys.stderr)
+        return 1
+    (args.out / "metrics.json").write_text(json.dumps(result, indent=2))
+    page = write_outputs(args.out, {"utility": [result]}, f"{args.scene}: utility")
+    summary(result)
+    print(f"metrics, plots and {page} in {args.out}")
+    return 0

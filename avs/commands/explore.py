@@ -1,0 +1,140 @@
+"""``avs explore``: one exploration episode with every service as a local process (sim in
+lockstep, perception, scene memory, nbv over a loopback Zenoh router): ``DIR/metrics.json``,
+``f1.png``, ``unknown_voxels.png``, ``path_cost.png``, ``views_map.png`` and a self-contained
+``report.html``. ``avs compare``: several strategies over several seeds, side by side (thesis
+Fig. 4.8, 4.11, 4.12)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+
+def _episode_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--scene", default="tabletop_occluded", help="scene name or MJCF file")
+    p.add_argument("--robot", default="armar6")
+    p.add_argument(
+        "--sampling", choices=["equidistant", "random", "topdown"], default="equidistant"
+    )
+    p.add_argument("--fusion", choices=["pc", "sg", "pc+sg"], default="sg")
+    p.add_argument("--views", type=int, default=10, help="at most this many views (n)")
+    p.add_argument("--voxel", type=float, default=0.01, help="occupancy voxel, m")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "explore",
+        help="one exploration episode: all services, metrics, plots, report",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    _episode_arguments(p)
+    p.add_argument(
+        "--strategy", choices=["utility", "occupancy", "random", "saliency"], default="utility"
+    )
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_explore)
+    c = sub.add_parser(
+        "compare",
+        help="strategies side by side over seeds (Fig. 4.8, 4.11, 4.12)",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    _episode_arguments(c)
+    c.add_argument("--strategies", default="utility,occupancy,random")
+    c.add_argument("--seeds", type=int, default=3)
+    c.set_defaults(func=_compare)
+
+
+def progress_bar(label: str):
+    def show(i: int, n: int, r) -> None:
+        bar = "#" * int(30 * i / n)
+        print(
+            f"\r{label} [{bar:<30}] view {i}/{n}  F1 {r.support_f1:.2f}  unknown "
+            f"{r.unknown_voxels}  cost {r.accumulated_path_cost:.1f} s",
+            end="",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    return show
+
+
+def run_episode(config, label: str) -> dict:
+    from avs.explore import Episode
+
+    result = Episode(config, progress_bar(label)).run().to_json()
+    print(f"  terminated by {result['terminated_by']}", file=sys.stderr, flush=True)
+    return result
+
+
+def _config(args: argparse.Namespace, **kw):
+    from avs.explore import EpisodeConfig
+
+    return EpisodeConfig(
+        scene=args.scene, robot=args.robot, sampling=args.sampling, fusion=args.fusion,
+        views=args.views, voxel=args.voxel, out=args.out, **kw,
+    )  # fmt: skip
+
+
+def write_outputs(out: Path, runs: dict[str, list[dict]], title: str) -> Path:
+    from avs import report
+
+    images = report.series_plots(runs, out)
+    images.append(report.map_plot({k: v[0] for k, v in runs.items()}, out))
+    tables = {f"{k} seed {e['seed']}": e for k, v in runs.items() for e in v}
+    return report.html_report(title, images, tables, out)
+
+
+def _explore(args: argparse.Namespace) -> int:
+    from services.sim.scene import SceneError
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    try:
+        result = run_episode(_config(args, strategy=args.strategy, seed=args.seed), args.strategy)
+    except SceneError as e:
+        print(f"avs explore: {e}", file=sys.stderr)
+        return 2
+    (args.out / "metrics.json").write_text(json.dumps(result, indent=2))
+    page = write_outputs(args.out, {args.strategy: [result]}, f"{args.scene}: {args.strategy}")
+    summary(result)
+    print(f"wrote {args.out / 'metrics.json'}, plots and {page}")
+    return 0
+
+
+def summary(result: dict) -> None:
+    last = result["views"][-1] if result["views"] else None
+    if last is None:
+        print("no view taken")
+        return
+    print(
+        f"{result['scene']}: {len(result['views'])} views, terminated by "
+        f"{result['terminated_by']}; support F1 {last['support_f1']:.2f}, unknown voxels "
+        f"{last['unknown_voxels']}, path cost {last['accumulated_path_cost']:.1f} s, "
+        f"InlierIndex {last['inlier_index']:.2f}"
+    )
+
+
+def _compare(args: argparse.Namespace) -> int:
+    args.out.mkdir(parents=True, exist_ok=True)
+    runs: dict[str, list[dict]] = {}
+    base = _config(args)
+    for strategy in [s.strip() for s in args.strategies.split(",") if s.strip()]:
+        for seed in range(args.seeds):
+            out = args.out / f"{strategy}-{seed}"
+            config = replace(base, strategy=strategy, seed=seed, out=out)
+            runs.setdefault(strategy, []).append(run_episode(config, f"{strategy} seed {seed}"))
+    (args.out / "metrics.json").write_text(json.dumps(runs, indent=2))
+    page = write_outputs(args.out, runs, f"{args.scene}: strategies compared")
+    for strategy, episodes in runs.items():
+        last = [e["views"][-1] for e in episodes if e["views"]]
+        print(
+            f"{strategy:10s} unknown {sorted(r['unknown_voxels'] for r in last)}  "
+            f"path cost {sorted(round(r['accumulated_path_cost'], 1) for r in last)}"
+        )
+    print(f"wrote {args.out / 'metrics.json'}, plots and {page}")
+    return 0

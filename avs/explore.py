@@ -1,0 +1,308 @@
+"""The exploration episode (thesis Algorithm 5 in a loop, 4.5): every service a local process
+on a loopback router, the sim in lockstep, and this orchestrator stepping it:
+
+    plan (nbv/plan: BaseGoal + HeadCommand) → step the sim until the platform and head arrive
+    → render → perception → scene memory (fuse, integrate) → score against the ground truth
+
+until the planner stops (u(v̂) below quality, or n views). The first view is taken where the
+robot starts, looking at the roi's centre. Per view: support-graph precision / recall / F1
+(Eq. 4.14-4.16), unknown voxels in the roi, path cost and its sum, InlierIndex and
+OverlappingIndex (Eq. 3.11, 3.12), planning time, platform pose."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from avs import evaluation
+from avs.launcher import Supervisor
+from avs.services import BY_NAME
+from schemas import (
+    BasePose,
+    BoxQuery,
+    GroundTruth,
+    GroundTruthQuery,
+    JointState,
+    Keys,
+    NextBestView,
+    OccupancyStats,
+    PlanRequest,
+    RgbdFrame,
+    SceneModel,
+    SimControl,
+    SimStatus,
+    decode,
+    encode,
+)
+
+EPISODE_SERVICES = ("sim", "perception", "scene_memory", "nbv")
+
+
+@dataclass
+class EpisodeConfig:
+    scene: str = "tabletop_occluded"
+    robot: str = "armar6"
+    strategy: str = "utility"
+    sampling: str = "equidistant"
+    fusion: str = "sg"
+    views: int = 10
+    seed: int = 0
+    voxel: float = 0.01
+    out: Path = Path("runs/explore")
+    ready_timeout: float = 120.0
+
+
+@dataclass
+class ViewRecord:
+    view: int
+    support_precision: float
+    support_recall: float
+    support_f1: float
+    unknown_voxels: int
+    path_cost: float
+    accumulated_path_cost: float
+    inlier_index: float
+    overlapping_index: float
+    planning_s: float
+    base: list[float]
+    information_gain: float = 0.0
+
+
+@dataclass
+class EpisodeResult:
+    scene: str
+    strategy: str
+    sampling: str
+    fusion: str
+    seed: int
+    views: list[ViewRecord] = field(default_factory=list)
+    terminated_by: str = ""
+    final_support_edges: list[list[str]] = field(default_factory=list)
+    roi: list[list[float]] = field(default_factory=list)
+    centre: list[float] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def scene_facts(scene: str, robot: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
+    """(roi min, roi max, view-sphere centre, robot start) of a scene file."""
+    from avs.commands.perceive import look_target
+    from services.sim.robots import ROBOTS
+    from services.sim.world import World
+
+    world = World(scene, ROBOTS[robot])
+    centre = look_target(world)
+    if world.info.roi is not None:
+        lo, hi = world.info.roi
+    else:
+        lo, hi = centre - 1.0, centre + 1.0
+    return np.asarray(lo), np.asarray(hi), centre, tuple(world.info.robot_start)
+
+
+class Latest:
+    """The newest decoded message of one key."""
+
+    def __init__(self, session: zenoh.Session, key: str, schema) -> None:
+        self.value = None
+        self.count = 0
+        self.cond = threading.Condition()
+        self.schema = schema
+        self.sub = session.declare_subscriber(key, self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        message = decode(sample.payload.to_bytes(), self.schema)
+        with self.cond:
+            self.value = message
+            self.count += 1
+            self.cond.notify_all()
+
+    def wait(self, predicate, timeout: float, what: str):
+        deadline = time.monotonic() + timeout
+        with self.cond:
+            while self.value is None or not predicate(self.value):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise TimeoutError(f"timed out waiting for {what}")
+                self.cond.wait(left)
+            return self.value
+
+
+class Episode:
+    def __init__(self, config: EpisodeConfig, progress=None) -> None:
+        self.c = config
+        self.progress = progress
+        self.keys = Keys(config.robot)
+
+    def _env(self, data_dir: Path, roi_lo, roi_hi, centre) -> dict[str, str]:
+        c = self.c
+        lo, hi = roi_lo - 1.0, roi_hi + 1.0
+        lo[2], hi[2] = -0.05, max(2.2, hi[2])
+        csv = lambda v: ",".join(f"{x:.4f}" for x in v)  # noqa: E731
+        return {
+            "AVS_SIM_SCENE": c.scene,
+            "AVS_SIM_LOCKSTEP": "true",
+            "AVS_SIM_SEED": str(c.seed),
+            "AVS_SCENE_MEMORY_DATA_DIR": str(data_dir),
+            "AVS_SCENE_MEMORY_FUSION": c.fusion,
+            "AVS_SCENE_MEMORY_VOXEL": str(c.voxel),
+            "AVS_SCENE_MEMORY_BOUNDS_MIN": csv(lo),
+            "AVS_SCENE_MEMORY_BOUNDS_MAX": csv(hi),
+            "AVS_SCENE_MEMORY_ROI_MIN": csv(roi_lo),
+            "AVS_SCENE_MEMORY_ROI_MAX": csv(roi_hi),
+            "AVS_NBV_CENTRE": csv(centre),
+            "AVS_NBV_ROI_MIN": csv(roi_lo),
+            "AVS_NBV_ROI_MAX": csv(roi_hi),
+            "AVS_NBV_STRATEGY": c.strategy,
+            "AVS_NBV_SAMPLING": c.sampling,
+            "AVS_NBV_MAX_VIEWS": str(c.views),
+            "AVS_NBV_SEED": str(c.seed),
+            "AVS_PERCEPTION_CAMERA": "registered" if c.fusion != "sg" else "head_rgbd",
+        }
+
+    def _query(self, session, key: str, request, schema, timeout: float = 60.0):
+        payload = encode(request) if request is not None else None
+        for reply in session.get(key, payload=payload, timeout=timeout):
+            if reply.ok is not None:
+                return decode(reply.ok.payload.to_bytes(), schema)
+            raise RuntimeError(f"{key}: {reply.err.payload.to_bytes()[:300]!r}")
+        raise TimeoutError(f"no reply on {key}")
+
+    def _sim(self, session, **kw) -> SimStatus:
+        status = self._query(session, self.keys.sim_control(), SimControl(**kw), SimStatus)
+        if not status.ok:
+            raise RuntimeError(f"sim/control {kw}: {status.error}")
+        return status
+
+    def _settle(self, session, base: Latest, joints: Latest, nbv: NextBestView, goal: str):
+        """Step the lockstep sim until the platform reached its goal and the head its joints."""
+        targets = dict(zip(nbv.joint_names, nbv.joint_positions, strict=True))
+        for _ in range(600):  # ≤ 60 s of sim time
+            self._sim(session, op="step", n=100)
+            b, j = base.value, joints.value
+            if b is None or j is None:
+                continue
+            arrived = not goal or (b.goal_id == goal and b.goal_status == "reached")
+            if b.goal_id == goal and b.goal_status == "aborted":
+                raise RuntimeError(f"the platform could not reach {goal}")
+            pos = dict(zip(j.names, j.position, strict=True))
+            vel = dict(zip(j.names, j.velocity, strict=True))
+            head = all(abs(pos[n] - v) < 0.01 and abs(vel[n]) < 0.02 for n, v in targets.items())
+            if arrived and head:
+                self._sim(session, op="step", n=50)  # let it come to rest
+                return
+        raise TimeoutError(f"the robot did not arrive at view {nbv.step}")
+
+    def run(self) -> EpisodeResult:
+        c = self.c
+        roi_lo, roi_hi, centre, start = scene_facts(c.scene, c.robot)
+        c.out.mkdir(parents=True, exist_ok=True)
+        data_dir = c.out / "scene_memory"
+        shutil.rmtree(data_dir, ignore_errors=True)
+        endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        services = [BY_NAME[n] for n in EPISODE_SERVICES]
+        supervisor = Supervisor(
+            services, endpoint, c.robot, env=self._env(data_dir, roi_lo, roi_hi, centre),
+            restart=False,
+        )  # fmt: skip
+        result = EpisodeResult(
+            c.scene, c.strategy, c.sampling, c.fusion, c.seed,
+            roi=[list(map(float, roi_lo)), list(map(float, roi_hi))],
+            centre=list(map(float, centre)),
+        )  # fmt: skip
+        supervisor.start()
+        try:
+            if not supervisor.wait_ready(c.ready_timeout):
+                raise RuntimeError(f"services not alive: {supervisor.report()}")
+            conf = zenoh.Config()
+            conf.insert_json5("mode", '"client"')
+            conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+            conf.insert_json5("scouting/multicast/enabled", "false")
+            with zenoh.open(conf) as session:
+                self._loop(session, result, roi_lo, roi_hi, start)
+        finally:
+            supervisor.stop()
+        return result
+
+    def _loop(self, session, result: EpisodeResult, roi_lo, roi_hi, start) -> None:
+        c, k = self.c, self.keys
+        base = Latest(session, k.base_state(), BasePose)
+        joints = Latest(session, k.joints(), JointState)
+        frames = Latest(session, k.rgbd("head_rgbd"), RgbdFrame)
+        scenes = Latest(session, k.scene(), SceneModel)
+        self._sim(session, op="reset", scene=c.scene, seed=c.seed)
+        self._sim(session, op="step", n=10)
+        roi = BoxQuery(box_min=roi_lo, box_max=roi_hi)
+        visited: list[list[float]] = []
+        seen: list[dict[str, np.ndarray]] = []
+        accumulated = 0.0
+        for view in range(c.views):
+            t0 = time.perf_counter()
+            request = PlanRequest(
+                step=view, initial=view == 0, visited=np.array(visited).reshape(-1, 3)
+            )
+            nbv = self._query(session, k.plan(), request, NextBestView, timeout=300)
+            planning_s = time.perf_counter() - t0
+            if nbv.terminate:
+                result.terminated_by = "quality" if nbv.reason == "quality" else nbv.reason
+                break
+            self._settle(session, base, joints, nbv, "" if view == 0 else f"view-{view}")
+            n_frames = frames.count
+            self._sim(session, op="render")
+            frame = frames.wait(lambda f, n=n_frames: frames.count > n, 30, "the rendered frame")
+            scene = scenes.wait(lambda s, v=view: s.n_views >= v + 1, 120, f"the fused view {view}")
+            self._wait_integrated(session, view + 1)
+            gt = self._query(
+                session, k.ground_truth(), GroundTruthQuery(camera="head_rgbd"), GroundTruth
+            )
+            b = base.value
+            pose = [b.x, b.y, b.yaw]
+            visited.append(pose)
+            seen.append(
+                evaluation.labelled_points(gt, frame.depth, frame.intrinsics, frame.T_world_camera)
+            )
+            scores = evaluation.score_primitives(
+                evaluation.merge_points(seen), scene.primitives, scope=evaluation.bodies_in_roi(gt)
+            )
+            support = evaluation.score_support(
+                gt, [(e.supporter, e.supported) for e in scene.support_edges], scores.bodies
+            )
+            stats = self._query(session, k.occupancy("stats"), roi, OccupancyStats)
+            cost = 0.0 if view == 0 else float(nbv.cost)
+            accumulated += cost
+            record = ViewRecord(
+                view, support.precision, support.recall, support.f1, int(stats.unknown),
+                cost, accumulated, scores.inlier_index, scores.overlapping_index, planning_s,
+                pose, float(nbv.information_gain),
+            )  # fmt: skip
+            result.views.append(record)
+            result.final_support_edges = [list(e) for e in support.edges]
+            if self.progress:
+                self.progress(view + 1, c.views, record)
+        else:
+            result.terminated_by = "max_views"
+        if not result.terminated_by:
+            result.terminated_by = "max_views"
+
+    def _wait_integrated(self, session, frames: int) -> None:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            stats = self._query(session, self.keys.occupancy("stats"), None, OccupancyStats)
+            if stats.frames_integrated >= frames:
+                return
+            time.sleep(0.05)
+        raise TimeoutError("the scene memory did not integrate the frame")

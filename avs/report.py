@@ -1,0 +1,115 @@
+"""Plots and a self-contained HTML report of exploration episodes (thesis Fig. 4.8, 4.11,
+4.12): support F1, unknown voxels and accumulated path cost over the views, and the chosen views
+on a top-down map of the roi."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+from pathlib import Path
+
+import numpy as np
+
+SERIES = {
+    "f1": ("support_f1", "support-graph F1 (Eq. 4.14)"),
+    "unknown_voxels": ("unknown_voxels", "unknown voxels in the roi"),
+    "path_cost": ("accumulated_path_cost", "accumulated path cost c(v), s (Eq. 4.9)"),
+}
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def series_plots(runs: dict[str, list[dict]], out: Path) -> list[Path]:
+    """One plot per series; ``runs`` maps a label to its episodes (several seeds: median line
+    and min-max band)."""
+    from matplotlib.ticker import MaxNLocator
+
+    plt = _plt()
+    paths = []
+    for name, (key, title) in SERIES.items():
+        fig, ax = plt.subplots(figsize=(6.4, 3.6))
+        for label, episodes in runs.items():
+            n = max(len(e["views"]) for e in episodes)
+            values = np.full((len(episodes), n), np.nan)
+            for i, e in enumerate(episodes):
+                v = [r[key] for r in e["views"]]
+                values[i, : len(v)] = v
+            x = np.arange(1, n + 1)
+            ax.plot(x, np.nanmedian(values, axis=0), "o-", label=label)
+            if len(episodes) > 1:
+                ax.fill_between(x, np.nanmin(values, 0), np.nanmax(values, 0), alpha=0.2)
+        ax.set_xlabel("view")
+        ax.set_title(title)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+        ax.legend()
+        fig.tight_layout()
+        path = out / f"{name}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def map_plot(episodes: dict[str, dict], out: Path) -> Path:
+    """The roi from above with each episode's platform poses, numbered, and the path order."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    first = next(iter(episodes.values()))
+    (x0, y0, _), (x1, y1, _) = first["roi"]
+    ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ls="--", label="roi"))
+    cx, cy, _ = first["centre"]
+    ax.plot([cx], [cy], "k+", ms=12)
+    for label, e in episodes.items():
+        b = np.array([r["base"] for r in e["views"]])
+        if not len(b):
+            continue
+        line = ax.plot(b[:, 0], b[:, 1], "o-", alpha=0.8, label=label)[0]
+        for i, (x, y, yaw) in enumerate(b):
+            ax.annotate(str(i + 1), (x, y), textcoords="offset points", xytext=(4, 4))
+            ax.arrow(x, y, 0.2 * np.cos(yaw), 0.2 * np.sin(yaw), width=0.01, color=line.get_color())
+    ax.set_aspect("equal")
+    ax.set_xlabel("x, m")
+    ax.set_ylabel("y, m")
+    ax.set_title("chosen views (platform poses)")
+    ax.legend(loc="best")
+    fig.tight_layout()
+    path = out / "views_map.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Path) -> Path:
+    """report.html with the images inlined (base64), one summary table per episode."""
+    parts = [f"<!doctype html><meta charset=utf-8><title>{html.escape(title)}</title>",
+             "<style>body{font-family:sans-serif;max-width:1000px;margin:2em auto}"
+             "img{max-width:100%}td,th{padding:2px 8px;text-align:right}</style>",
+             f"<h1>{html.escape(title)}</h1>"]  # fmt: skip
+    for img in images:
+        data = base64.b64encode(img.read_bytes()).decode()
+        parts.append(f'<p><img alt="{img.stem}" src="data:image/png;base64,{data}"></p>')
+    cols = ["view", "support_f1", "unknown_voxels", "path_cost", "accumulated_path_cost",
+            "inlier_index", "overlapping_index", "planning_s"]  # fmt: skip
+    for label, e in tables.items():
+        parts.append(f"<h2>{html.escape(label)}</h2><p>terminated by {e['terminated_by']}</p>")
+        parts.append("<table><tr>" + "".join(f"<th>{c}</th>" for c in cols) + "</tr>")
+        for r in e["views"]:
+            cells = "".join(
+                f"<td>{r[c]:.3f}</td>" if isinstance(r[c], float) else f"<td>{r[c]}</td>"
+                for c in cols
+            )
+            parts.append(f"<tr>{cells}</tr>")
+        parts.append("</table>")
+    edges = {k: v["final_support_edges"] for k, v in tables.items()}
+    parts.append(f"<h2>final support edges</h2><pre>{html.escape(json.dumps(edges))}</pre>")
+    path = out / "report.html"
+    path.write_text("\n".join(parts))
+    return path

@@ -1,0 +1,193 @@
+"""The next-best-view node: ``nbv/plan`` queries in (PlanRequest), one planning step each
+against the scene memory's scene and occupancy map; the evaluated candidates out on
+``nbv/candidates``, the chosen view on ``nbv/next_view`` and as the reply, and (with
+``execute``) the platform goal on ``cmd/base`` and the head joints on ``cmd/head``."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+import numpy as np
+
+from schemas import (
+    BaseGoal,
+    BasePose,
+    BoxQuery,
+    HeadCommand,
+    NextBestView,
+    OccupancySlice,
+    PlanRequest,
+    SceneModel,
+    ViewCandidates,
+)
+from services.common.node import Node
+from services.common.robots import robot_mjcf
+from services.nbv.config import NbvSettings
+from services.nbv.planner import Planner, PlannerConfig
+
+log = logging.getLogger("avs.nbv")
+
+
+class NbvNode:
+    def __init__(self, node: Node, settings: NbvSettings) -> None:
+        self.node, self.s = node, settings
+        self.planner = Planner(
+            PlannerConfig(
+                radius=settings.radius,
+                sampling=settings.sampling,
+                strategy=settings.strategy,
+                lam=settings.lam,
+                lambda_s=settings.lambda_s,
+                lambda_quality=settings.lambda_quality,
+                max_views=settings.max_views,
+                k=settings.k,
+                samples=settings.samples,
+                every=settings.every,
+                best_k=settings.best_k,
+                max_range=settings.max_range,
+                seed=settings.seed,
+                roi=(np.array(settings.roi_min), np.array(settings.roi_max))
+                if settings.roi_min and settings.roi_max
+                else None,
+            ),
+            robot_mjcf(settings.robot),
+            settings.camera,
+            settings.robot,
+        )
+        self.lock = threading.Lock()
+        self.base: BasePose | None = None
+        k = node.keys
+        node.subscribe(k.base_state(), BasePose, self.on_base, latest_only=True)
+        self.out_candidates = node.publisher(k.candidates())
+        self.out_next = node.publisher(k.next_view())
+        self.out_base = node.publisher(k.cmd_base())
+        self.out_head = node.publisher(k.cmd_head())
+        node.serve(k.plan(), self.on_plan, PlanRequest)
+
+    def on_base(self, pose: BasePose) -> None:
+        self.base = pose
+
+    def _current(self) -> tuple[float, float, float]:
+        deadline = time.monotonic() + 10
+        while self.base is None and time.monotonic() < deadline:
+            time.sleep(0.01)
+        if self.base is None:
+            raise RuntimeError("no state/base received: is the sim running?")
+        return (self.base.x, self.base.y, self.base.yaw)
+
+    def _map(self) -> OccupancySlice:
+        lo = np.array(self.s.map_min) if self.s.map_min else np.full(3, -1e3)
+        hi = np.array(self.s.map_max) if self.s.map_max else np.full(3, 1e3)
+        (piece,) = self.node.query(
+            self.node.keys.occupancy("slice"), BoxQuery(box_min=lo, box_max=hi), OccupancySlice, 30
+        )
+        return piece
+
+    def centre(self, piece: OccupancySlice | None) -> np.ndarray:
+        if self.s.centre:
+            return np.array(self.s.centre, float)
+        if piece is None:
+            piece = self._map()
+        mid = piece.origin + np.array(piece.states.shape) * piece.voxel_size / 2
+        return np.array([mid[0], mid[1], 0.9])
+
+    def _head(self, joints: dict[str, float], step: int) -> None:
+        names = list(joints)
+        self.out_head.put(
+            HeadCommand(
+                seq=step,
+                stamp=time.time(),
+                names=names,
+                mode="position",
+                values=np.array([joints[n] for n in names]),
+                source="nbv",
+            )
+        )
+
+    def on_plan(self, request: PlanRequest | None) -> NextBestView:
+        request = request or PlanRequest()
+        with self.lock:
+            return self._plan(request)
+
+    def _plan(self, request: PlanRequest) -> NextBestView:
+        current = self._current()
+        strategy = self.s.strategy
+        if request.initial:
+            centre = self.centre(None)
+            joints = self.planner.look(current, centre)
+            T = self.planner.ik.camera_pose(
+                current, np.array([joints[n] for n in self.planner.ik.names])
+            )
+            if request.execute and joints:
+                self._head(joints, request.step)
+            reply = NextBestView(
+                seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
+                view=T, x=current[0], y=current[1], yaw=current[2],
+                joint_names=list(joints), joint_positions=np.array(list(joints.values())),
+                target=centre, information_gain=0.0, cost=0.0, utility=0.0,
+            )  # fmt: skip
+            self.out_next.put(reply)
+            return reply
+        piece = self._map()
+        (scene,) = self.node.query(self.node.keys.scene(), None, SceneModel, 30) or [None]
+        centre = self.centre(piece)
+        result = self.planner.plan(
+            centre, scene, piece.states, piece.origin, piece.voxel_size, current,
+            request.visited, request.step,
+        )  # fmt: skip
+        c = result.candidates
+        self.out_candidates.put(
+            ViewCandidates(
+                seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
+                sampling=self.s.sampling, center=centre,
+                views=c.poses if len(c.poses) else np.zeros((0, 4, 4)),
+                base_pose=c.base if len(c.base) else np.zeros((0, 3)),
+                information_gain=result.gain.astype(float), cost=result.cost,
+                utility=np.where(np.isfinite(result.utility), result.utility, -1.0),
+                saliency=c.saliency, reachable=np.isfinite(result.cost),
+            )
+        )  # fmt: skip
+        for key, value in result.timings_ms.items():
+            self.node.metrics.gauge(key, value)
+        b = result.best
+        if b is None:
+            reply = NextBestView(
+                seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
+                view=np.eye(4), x=current[0], y=current[1], yaw=current[2], joint_names=[],
+                joint_positions=np.zeros(0), target=centre, information_gain=0.0,
+                cost=0.0, utility=0.0, terminate=True,
+                reason="no_candidates",
+            )  # fmt: skip
+            self.out_next.put(reply)
+            return reply
+        joints = c.joints[b]
+        reply = NextBestView(
+            seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
+            view=c.poses[b], x=float(c.base[b][0]), y=float(c.base[b][1]),
+            yaw=float(c.base[b][2]), joint_names=list(joints),
+            joint_positions=np.array(list(joints.values())), target=centre,
+            information_gain=float(result.gain[b]), cost=float(result.cost[b]),
+            utility=float(result.utility[b]), terminate=result.terminate, reason=result.reason,
+        )  # fmt: skip
+        self.out_next.put(reply)
+        if request.execute and not result.terminate:
+            path = result.path
+            self.out_base.put(
+                BaseGoal(
+                    seq=request.step, stamp=time.time(), goal_id=f"view-{request.step}",
+                    x=reply.x, y=reply.y, yaw=reply.yaw,
+                    path=path[1:-1] if path is not None and len(path) > 2 else None,
+                )
+            )  # fmt: skip
+            self._head(joints, request.step)
+        log.info(
+            "planned",
+            extra={
+                "step": request.step, "candidates": len(result.gain),
+                "reachable": int(np.isfinite(result.cost).sum()), "ig": reply.information_gain,
+                "cost": reply.cost, "terminate": reply.terminate, **result.timings_ms,
+            },
+        )  # fmt: skip
+        return reply

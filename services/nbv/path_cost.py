@@ -1,0 +1,181 @@
+"""Path costs (thesis 4.3.2): a collision-free SE(2) path for the platform footprint against the
+obstacles of the occupancy map projected to the floor, planned with OMPL's RRT-Connect, and its
+cost c(v) = Σ max(‖Δp‖ / vel_lin, |Δα| / vel_rot) (Eq. 4.7-4.9), ∞ when unreachable.
+
+Straight lines that are free need no planner; goals outside the start's free component (a
+flood fill of the footprint's configuration space) are unreachable without asking it."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from services.nbv.view_sphere import wrap
+
+OCCUPIED = 2
+
+
+def path_cost(path: np.ndarray, vel_lin: float, vel_rot: float) -> float:
+    """Eq. 4.8, 4.9 over a path of (x, y, α) rows; Δα wrapped to (−π, π] (Eq. 4.7)."""
+    path = np.asarray(path, float)
+    if len(path) < 2:
+        return 0.0
+    lin = np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1) / vel_lin
+    rot = np.abs(wrap(path[:-1, 2] - path[1:, 2])) / vel_rot
+    return float(np.maximum(lin, rot).sum())
+
+
+@dataclass
+class FloorMap:
+    """Clearance (m) from every floor cell to the nearest obstacle voxel between ``z_range``."""
+
+    origin: np.ndarray  # (x, y) of cell (0, 0)'s corner
+    cell: float
+    clearance: np.ndarray  # (nx, ny) metres
+
+    @classmethod
+    def from_states(
+        cls,
+        states: np.ndarray,
+        origin: np.ndarray,
+        voxel: float,
+        z_range: tuple[float, float] = (0.05, 2.0),
+        keep_free: list[tuple[float, float, float]] = (),
+    ) -> FloorMap:
+        """Obstacles: occupied voxels between the heights ``z_range``; discs (x, y, radius) in
+        ``keep_free`` are cleared (the robot's own body, seen by its camera)."""
+        k0 = max(0, int((z_range[0] - origin[2]) / voxel))
+        k1 = max(k0, math.ceil((z_range[1] - origin[2]) / voxel))
+        obstacle = np.any(states[:, :, k0:k1] == OCCUPIED, axis=2)
+        if keep_free:
+            xs = origin[0] + (np.arange(obstacle.shape[0]) + 0.5) * voxel
+            ys = origin[1] + (np.arange(obstacle.shape[1]) + 0.5) * voxel
+            for x, y, r in keep_free:
+                obstacle &= (xs[:, None] - x) ** 2 + (ys[None, :] - y) ** 2 > r * r
+        if obstacle.any():
+            clearance = ndimage.distance_transform_edt(~obstacle) * voxel
+        else:
+            clearance = np.full(obstacle.shape, np.inf)
+        return cls(np.asarray(origin[:2], float), voxel, clearance)
+
+    def lookup(self, xy: np.ndarray) -> np.ndarray:
+        """Clearance at points (n, 2); 0 outside the map."""
+        k = np.floor((np.asarray(xy, float).reshape(-1, 2) - self.origin) / self.cell).astype(int)
+        inside = np.all((k >= 0) & (k < self.clearance.shape), axis=1)
+        out = np.zeros(len(k))
+        out[inside] = self.clearance[k[inside, 0], k[inside, 1]]
+        return out
+
+
+class PathPlanner:
+    """Platform paths on one FloorMap for a footprint of ``radius`` (+ ``margin``)."""
+
+    def __init__(
+        self,
+        floor: FloorMap,
+        radius: float,
+        vel_lin: float,
+        vel_rot: float,
+        margin: float = 0.05,
+        time_limit: float = 0.2,
+    ) -> None:
+        self.floor, self.vel_lin, self.vel_rot = floor, vel_lin, vel_rot
+        self.need = radius + margin
+        self.time_limit = time_limit
+        self.free = floor.clearance >= self.need
+        self.labels, _ = ndimage.label(self.free)
+        self._si = None
+
+    def valid(self, xy: np.ndarray) -> np.ndarray:
+        return self.floor.lookup(xy) >= self.need
+
+    def _segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
+        n = max(2, int(np.linalg.norm(b[:2] - a[:2]) / (self.floor.cell / 2)) + 1)
+        pts = a[None, :2] + np.linspace(0, 1, n)[:, None] * (b[:2] - a[:2])[None]
+        return bool(self.valid(pts).all())
+
+    def _label(self, xy) -> int:
+        k = np.floor((np.asarray(xy[:2]) - self.floor.origin) / self.floor.cell).astype(int)
+        if np.any(k < 0) or np.any(k >= self.labels.shape):
+            return 0
+        return int(self.labels[k[0], k[1]])
+
+    def plan(self, start, goal) -> np.ndarray | None:
+        """Waypoints (x, y, α) from start to goal, or None when the goal is unreachable."""
+        start, goal = np.asarray(start, float), np.asarray(goal, float)
+        if not self.valid(goal[None, :2])[0]:
+            return None
+        if self._segment_free(start, goal):
+            return np.stack([start, goal])
+        if not self.valid(start[None, :2])[0]:
+            return None  # boxed in: the caller clears its own footprint first
+        if self._label(start) == 0 or self._label(start) != self._label(goal):
+            return None
+        return self._rrt(start, goal)
+
+    def _space_information(self):
+        from ompl import base as ob
+
+        if self._si is None:
+            space = ob.SE2StateSpace()
+            bounds = ob.RealVectorBounds(2)
+            lo = self.floor.origin
+            hi = lo + np.array(self.floor.clearance.shape) * self.floor.cell
+            for i in range(2):
+                bounds.setLow(i, float(lo[i]))
+                bounds.setHigh(i, float(hi[i]))
+            space.setBounds(bounds)
+            si = ob.SpaceInformation(space)
+            clearance, origin, cell, need = (
+                self.floor.clearance,
+                self.floor.origin,
+                self.floor.cell,
+                self.need,
+            )
+            nx, ny = clearance.shape
+
+            def valid(state) -> bool:
+                i = int((state.getX() - origin[0]) / cell)
+                j = int((state.getY() - origin[1]) / cell)
+                return bool(0 <= i < nx and 0 <= j < ny and clearance[i, j] >= need)
+
+            si.setStateValidityChecker(valid)
+            # motions checked every 2.5 cm (the footprint keeps a 5 cm margin)
+            si.setStateValidityCheckingResolution(0.025 / float(np.max(hi - lo)))
+            si.setup()
+            self._si, self._space, self._valid = si, space, valid
+        return self._si
+
+    def _rrt(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        from ompl import base as ob
+        from ompl import geometric as og
+
+        si = self._space_information()
+        s, g = self._space.allocState(), self._space.allocState()
+        for state, p in ((s, start), (g, goal)):
+            state.setX(float(p[0]))
+            state.setY(float(p[1]))
+            state.setYaw(float(p[2]))
+        pdef = ob.ProblemDefinition(si)
+        pdef.setStartAndGoalStates(s, g)
+        planner = og.RRTConnect(si)
+        planner.setProblemDefinition(pdef)
+        planner.setup()
+        status = planner.solve(self.time_limit)
+        if str(status) != "Exact solution":
+            return None
+        path = pdef.getSolutionPath()
+        simplifier = og.PathSimplifier(si)
+        simplifier.reduceVertices(path)
+        simplifier.ropeShortcutPath(path)
+        return np.array([[q.getX(), q.getY(), q.getYaw()] for q in path.getStates()])
+
+    def cost(self, start, goal) -> tuple[float, np.ndarray | None]:
+        """(c(v), the path); (∞, None) when unreachable (Eq. 4.9)."""
+        path = self.plan(start, goal)
+        if path is None:
+            return math.inf, None
+        return path_cost(path, self.vel_lin, self.vel_rot), path

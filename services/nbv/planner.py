@@ -1,0 +1,188 @@
+"""One next-best-view planning step (thesis Algorithm 5): sample views, give each its platform
+pose (Eq. 4.2, 4.3) and head joints (IK, unreachable ones dropped), predict its information
+gain (Eq. 4.6), plan its path and cost (Eq. 4.9), score it (Eq. 4.13 or another strategy) and
+pick v̂ = argmax u(v). Pure: arrays and messages in, a PlanResult out."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from schemas import SceneModel
+from services.nbv import information_gain as ig
+from services.nbv import topdown, view_sphere
+from services.nbv.kinematics import HeadIK
+from services.nbv.path_cost import FloorMap, PathPlanner
+from services.nbv.utility import utility
+
+SAMPLINGS = ("equidistant", "random", "topdown")
+
+
+@dataclass
+class PlannerConfig:
+    radius: float = 1.5  # view sphere r (4.1)
+    sampling: str = "equidistant"
+    strategy: str = "utility"
+    lam: float = 0.5  # λ of Eq. 4.13
+    lambda_s: float = 0.75  # Eq. 4.5
+    lambda_quality: float = 0.05  # stop when the best view's predicted gain falls below this share
+    max_views: int = 10
+    k: int = 72  # equidistant grid step 2π/k (5°)
+    samples: int = 200  # random sampling
+    topdown_theta: float = math.radians(62)
+    every: int = 30  # hierarchical IG: every 30th ray, ...
+    best_k: int = 3  # ... then every ray for the best k
+    max_range: float = 3.0
+    intrinsics: tuple[int, int, float, float, float, float] = (
+        640, 480, 583.06, 579.41, 319.5, 239.5,
+    )  # fmt: skip
+    vel_lin: float = 0.5
+    vel_rot: float = 1.0
+    footprint: float = 0.45
+    height_tol: float = 0.05
+    seed: int = 0
+    roi: tuple[np.ndarray, np.ndarray] | None = None  # IG counts the unknown voxels in here
+
+
+@dataclass
+class Candidates:
+    t: np.ndarray  # (n, 3) sphere points relative to the centre
+    poses: np.ndarray  # (n, 4, 4) T_world_camera reached by IK
+    base: np.ndarray  # (n, 3)
+    joints: list[dict[str, float]]
+    saliency: np.ndarray
+
+
+@dataclass
+class PlanResult:
+    centre: np.ndarray
+    candidates: Candidates
+    gain: np.ndarray
+    cost: np.ndarray
+    utility: np.ndarray
+    best: int | None
+    path: np.ndarray | None
+    terminate: bool
+    reason: str
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class Planner:
+    def __init__(self, config: PlannerConfig, mjcf: Path, camera: str, robot: str) -> None:
+        self.config = config
+        self.ik = HeadIK(mjcf, camera, robot)
+        self.rng = np.random.default_rng(config.seed)
+        self.first_gain: float | None = None  # the best predicted gain of the first step
+
+    def sample(self, centre, scene: SceneModel | None, visited: np.ndarray, occupancy):
+        """Sphere points (relative to the centre) and their saliency."""
+        c = self.config
+        if c.sampling == "random":
+            t = view_sphere.random(c.samples, self.rng, c.radius)
+        else:
+            t = view_sphere.equidistant(c.k, c.radius)
+        s = np.zeros(len(t))
+        if c.sampling == "topdown" and scene is not None:
+            pois = topdown.points_of_interest(scene, centre, visited[:, :2], c.lambda_s)
+            t, s = topdown.saliency(t, pois, c.topdown_theta, c.radius, centre, *occupancy)
+        return t, s
+
+    def reachable_views(self, centre: np.ndarray, t: np.ndarray, s: np.ndarray) -> Candidates:
+        """Eq. 4.2, 4.3 and the head IK; views without a solution are discarded."""
+        keep, poses, bases, joints = [], [], [], []
+        lo, hi = self.ik.height_range()
+        tol = self.config.height_tol
+        for i, ti in enumerate(t):
+            if not lo - tol <= centre[2] + ti[2] <= hi + tol:
+                continue  # no torso height puts the camera there: skip the IK
+            base = view_sphere.platform_pose(centre, ti)
+            sol = self.ik.solve(base, centre, centre[2] + ti[2], height_tol=self.config.height_tol)
+            if sol is None:
+                continue
+            keep.append(i)
+            poses.append(sol.T_world_camera)
+            bases.append(base)
+            joints.append(sol.joints)
+        keep = np.array(keep, int)
+        return Candidates(
+            t[keep],
+            np.array(poses).reshape(-1, 4, 4),
+            np.array(bases).reshape(-1, 3),
+            joints,
+            s[keep],
+        )
+
+    def look(self, base: tuple[float, float, float], centre: np.ndarray) -> dict[str, float]:
+        """Head joints that aim the camera at the centre from where the robot stands (the first
+        view): the torso as high as it goes, the neck by IK."""
+        best = None
+        for h in np.linspace(2.0, 0.8, 13):
+            sol = self.ik.solve(base, centre, h, height_tol=10.0)
+            if sol is not None and (best is None or sol.aim_error < best.aim_error - 1e-4):
+                best = sol
+        return best.joints if best is not None else {}
+
+    def plan(
+        self,
+        centre: np.ndarray,
+        scene: SceneModel | None,
+        states: np.ndarray,
+        origin: np.ndarray,
+        voxel: float,
+        current: tuple[float, float, float],
+        visited: np.ndarray,
+        step: int,
+    ) -> PlanResult:
+        c = self.config
+        times = {}
+        t0 = time.perf_counter()
+        occupancy = (states, origin, voxel)
+        t, s = self.sample(centre, scene, visited, occupancy)
+        cands = self.reachable_views(centre, t, s)
+        times["sampling_ms"] = (time.perf_counter() - t0) * 1e3
+        t1 = time.perf_counter()
+        gain, _ = ig.hierarchical(
+            states, origin, voxel, cands.poses, c.intrinsics, c.max_range, c.every, c.best_k,
+            c.roi,
+        )  # fmt: skip
+        times["information_gain_ms"] = (time.perf_counter() - t1) * 1e3
+        t2 = time.perf_counter()
+        floor = FloorMap.from_states(
+            states, origin, voxel, keep_free=[(current[0], current[1], c.footprint + 0.1)]
+        )
+        planner = PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
+        cost = np.full(len(gain), math.inf)
+        paths: list[np.ndarray | None] = [None] * len(gain)
+        for i, b in enumerate(cands.base):
+            cost[i], paths[i] = planner.cost(np.array(current), b)
+        times["path_cost_ms"] = (time.perf_counter() - t2) * 1e3
+        u = utility(c.strategy, gain, cost, cands.saliency, c.lam, self.rng)
+        reachable = np.isfinite(cost)
+        best = int(np.argmax(u)) if reachable.any() else None
+        terminate, reason = False, ""
+        if best is None:
+            terminate, reason = True, "no_candidates"
+        else:
+            if self.first_gain is None:
+                self.first_gain = float(gain[reachable].max())
+            if step >= c.max_views:
+                terminate, reason = True, "max_views"
+            elif gain[best] < c.lambda_quality * max(self.first_gain, 1.0):
+                terminate, reason = True, "quality"
+        times["total_ms"] = (time.perf_counter() - t0) * 1e3
+        return PlanResult(
+            centre,
+            cands,
+            gain,
+            cost,
+            u,
+            best,
+            paths[best] if best is not None else None,
+            terminate,
+            reason,
+            times,
+        )
