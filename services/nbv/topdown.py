@@ -69,8 +69,10 @@ def points_of_interest(
         if not supporters[i]:
             if _is_ground(a, scene.root_id):
                 continue
-            half = np.abs(a.obb.rotation.T @ direction) @ (a.obb.extent / 2)
-            out.append(PoI(ca + direction * half, 1.0, middle))
+            # where the line from the centre towards the arc leaves the primitive's box
+            along = np.abs(a.obb.rotation.T @ direction)
+            exit_t = np.min(a.obb.extent / 2 / np.maximum(along, 1e-9))
+            out.append(PoI(ca + direction * exit_t, 1.0, middle))
         for b, occ in supporters[i]:
             x = ca + (prims[b].obb.center - ca) / 2
             if _is_ground(prims[b], scene.root_id):

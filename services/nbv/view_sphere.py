@@ -29,13 +29,14 @@ def equidistant(k: int, r: float = 1.5) -> np.ndarray:
     return spherical(r, theta.ravel(), phi.ravel())
 
 
-def random(n: int, rng: np.random.Generator, r: float = 1.5) -> np.ndarray:
-    """Uniform on the sphere (φ = 2πu_φ, θ = arccos(2u_θ − 1), 4.2.1), reflected into the
-    upper half: |z| keeps the density uniform there."""
+def random(n: int, rng: np.random.Generator, r: float = 1.5, upper: bool = True) -> np.ndarray:
+    """Uniform on the sphere: φ = 2πu_φ, θ = arccos(2u_θ − 1) (4.2.1). With ``upper`` the
+    samples are reflected into the upper half (|z|), which keeps them uniform there."""
     phi = 2 * math.pi * rng.uniform(size=n)
     theta = np.arccos(2 * rng.uniform(size=n) - 1)
     t = spherical(r, theta, phi)
-    t[:, 2] = np.abs(t[:, 2])
+    if upper:
+        t[:, 2] = np.abs(t[:, 2])
     return t
 
 

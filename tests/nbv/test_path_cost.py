@@ -1,0 +1,76 @@
+"""Path costs (Eq. 4.7-4.9) with OMPL's RRT-Connect against a floor map from voxel states."""
+
+from __future__ import annotations
+
+import math
+from itertools import pairwise
+
+import numpy as np
+import pytest
+
+from services.nbv.path_cost import FloorMap, PathPlanner, path_cost
+
+VOXEL = 0.02
+ORIGIN = np.array([-1.0, -2.0, 0.0])
+
+
+def world(obstacles: list[tuple[float, float, float, float]]) -> FloorMap:
+    """A 4 m × 4 m floor with box obstacles (x0, y0, x1, y1), 0.8 m high."""
+    states = np.ones((200, 200, 60), np.uint8)
+    xs = ORIGIN[0] + (np.arange(200) + 0.5) * VOXEL
+    ys = ORIGIN[1] + (np.arange(200) + 0.5) * VOXEL
+    for x0, y0, x1, y1 in obstacles:
+        ix = (xs >= x0) & (xs < x1)
+        iy = (ys >= y0) & (ys < y1)
+        states[np.ix_(ix, iy, np.arange(5, 40))] = 2
+    return FloorMap.from_states(states, ORIGIN, VOXEL)
+
+
+def test_eq_4_8_takes_the_slower_of_translation_and_rotation():
+    path = np.array([[0, 0, 0], [1, 0, 0], [1, 0, math.pi], [1, 1, -math.pi / 2]])
+    # 1 m at 0.5 m/s = 2 s; π at 1 rad/s = π s; 1 m vs |Δα| = π/2 (wrapped): 2 s
+    assert path_cost(path, 0.5, 1.0) == pytest.approx(2 + math.pi + 2)
+    # Δα wraps (Eq. 4.7): from 179° to -179° is 2°, not 358°
+    turn = np.array([[0, 0, math.radians(179)], [0, 0, math.radians(-179)]])
+    assert path_cost(turn, 0.5, 1.0) == pytest.approx(math.radians(2))
+
+
+def test_a_free_straight_line_costs_its_length():
+    planner = PathPlanner(world([]), 0.45, 0.5, 1.0)
+    cost, path = planner.cost((0.0, 0.0, 0.0), (2.0, 0.0, 0.0))
+    assert len(path) == 2 and cost == pytest.approx(4.0)
+
+
+def test_an_obstacle_between_robot_and_view_makes_the_path_longer_than_the_line():
+    planner = PathPlanner(world([(0.8, -1.0, 1.2, 1.0)]), 0.45, 0.5, 1.0)  # a wall across
+    start, goal = np.array([0.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0])
+    cost, path = planner.cost(start, goal)
+    assert math.isfinite(cost) and cost > 4.0 + 0.5
+    assert np.allclose(path[0], start) and np.allclose(path[-1], goal)
+    # every waypoint and every segment between them keeps the footprint clear of the wall
+    for a, b in pairwise(path):
+        pts = a[:2] + np.linspace(0, 1, 200)[:, None] * (b[:2] - a[:2])
+        assert planner.valid(pts).all()
+
+
+def test_unreachable_views_cost_infinity():
+    # the goal inside an obstacle, and a goal inside a closed room
+    room = [
+        (1.5, -0.5, 2.8, -0.4),
+        (1.5, 0.4, 2.8, 0.5),
+        (1.5, -0.5, 1.6, 0.5),
+        (2.7, -0.5, 2.8, 0.5),
+    ]
+    planner = PathPlanner(world([(0.8, -1.0, 1.2, 1.0), *room]), 0.2, 0.5, 1.0)
+    assert planner.cost((0.0, 0.0, 0.0), (1.0, 0.0, 0.0))[0] == math.inf
+    assert planner.cost((0.0, 0.0, 0.0), (2.15, 0.0, 0.0))[0] == math.inf
+    assert planner.cost((0.0, 0.0, 0.0), (0.0, 1.5, 0.0))[0] < math.inf
+
+
+def test_the_robot_does_not_block_itself():
+    states = np.ones((200, 200, 60), np.uint8)
+    states[45:55, 95:105, 10:20] = 2  # the robot's own arm, seen by its camera, at (0, 0)
+    free = FloorMap.from_states(states, ORIGIN, VOXEL, keep_free=[(0.0, 0.0, 0.55)])
+    assert PathPlanner(free, 0.45, 0.5, 1.0).cost((0, 0, 0), (1.0, 0.0, 0.0))[0] == pytest.approx(
+        2.0
+    )
