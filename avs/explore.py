@@ -12,6 +12,7 @@ OverlappingIndex (Eq. 3.11, 3.12), planning time, platform pose."""
 from __future__ import annotations
 
 import json
+import logging
 import shutil
 import socket
 import threading
@@ -27,12 +28,14 @@ from avs.launcher import Supervisor
 from avs.services import BY_NAME
 from schemas import (
     BasePose,
+    BaseVelocity,
     BoxQuery,
     GroundTruth,
     GroundTruthQuery,
     JointState,
     Keys,
     NextBestView,
+    OccupancySlice,
     OccupancyStats,
     PlanRequest,
     RgbdFrame,
@@ -44,6 +47,7 @@ from schemas import (
 )
 
 EPISODE_SERVICES = ("sim", "perception", "scene_memory", "nbv")
+log = logging.getLogger("avs.explore")
 
 
 @dataclass
@@ -74,6 +78,9 @@ class ViewRecord:
     planning_s: float
     base: list[float]
     information_gain: float = 0.0
+    reached: bool = True  # False: the platform got stuck on the way; the view is from there
+    goal: list[float] = field(default_factory=list)  # the planned platform pose (Eq. 4.2, 4.3)
+    trajectory: list[list[float]] = field(default_factory=list)  # (x, y) driven, every 0.1 s
 
 
 @dataclass
@@ -88,6 +95,11 @@ class EpisodeResult:
     final_support_edges: list[list[str]] = field(default_factory=list)
     roi: list[list[float]] = field(default_factory=list)
     centre: list[float] = field(default_factory=list)
+    #: the final map's obstacles seen from above (occupied voxels 5 cm-2 m): a PNG in the
+    #: episode's directory, with the world position of its corner and its cell size
+    floor_png: str = ""
+    floor_origin: list[float] = field(default_factory=list)
+    floor_cell: float = 0.0
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -99,8 +111,8 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def scene_facts(scene: str, robot: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple]:
-    """(roi min, roi max, view-sphere centre, robot start) of a scene file."""
+def scene_facts(scene: str, robot: str) -> tuple:
+    """(roi min, roi max, the roi's centre, robot start, points of interest (m, 3))."""
     from avs.commands.perceive import look_target
     from services.sim.robots import ROBOTS
     from services.sim.world import World
@@ -111,7 +123,8 @@ def scene_facts(scene: str, robot: str) -> tuple[np.ndarray, np.ndarray, np.ndar
         lo, hi = world.info.roi
     else:
         lo, hi = centre - 1.0, centre + 1.0
-    return np.asarray(lo), np.asarray(hi), centre, tuple(world.info.robot_start)
+    pois = np.array([world.info.pois[k] for k in sorted(world.info.pois)]).reshape(-1, 3)
+    return np.asarray(lo), np.asarray(hi), centre, tuple(world.info.robot_start), pois
 
 
 class Latest:
@@ -148,7 +161,7 @@ class Episode:
         self.progress = progress
         self.keys = Keys(config.robot)
 
-    def _env(self, data_dir: Path, roi_lo, roi_hi, centre) -> dict[str, str]:
+    def _env(self, data_dir: Path, roi_lo, roi_hi, centre, pois) -> dict[str, str]:
         c = self.c
         lo, hi = roi_lo - 1.0, roi_hi + 1.0
         lo[2], hi[2] = -0.05, max(2.2, hi[2])
@@ -164,7 +177,9 @@ class Episode:
             "AVS_SCENE_MEMORY_BOUNDS_MAX": csv(hi),
             "AVS_SCENE_MEMORY_ROI_MIN": csv(roi_lo),
             "AVS_SCENE_MEMORY_ROI_MAX": csv(roi_hi),
-            "AVS_NBV_CENTRE": csv(centre),
+            # the view spheres: around the points of interest if the scene has them (4.5.3)
+            "AVS_NBV_CENTRE": csv(np.ravel(pois) if len(pois) else centre),
+            "AVS_NBV_FIRST_TARGET": csv(centre),
             "AVS_NBV_ROI_MIN": csv(roi_lo),
             "AVS_NBV_ROI_MAX": csv(roi_hi),
             "AVS_NBV_STRATEGY": c.strategy,
@@ -188,11 +203,17 @@ class Episode:
             raise RuntimeError(f"sim/control {kw}: {status.error}")
         return status
 
-    def _settle(self, session, base: Latest, joints: Latest, nbv: NextBestView, goal: str):
-        """Step the lockstep sim until the platform reached its goal and the head its joints."""
+    def _settle(self, session, base: Latest, joints: Latest, nbv: NextBestView, goal: str) -> bool:
+        """Step the lockstep sim until the platform reached its goal and the head its joints.
+        A platform that has not arrived after twice its estimated time (plus 10 s) is stopped
+        where it is, and the view taken from there: False."""
         targets = dict(zip(nbv.joint_names, nbv.joint_positions, strict=True))
-        for _ in range(600):  # ≤ 60 s of sim time
+        steps = int((2 * nbv.cost + 10) / 0.1)
+        self.trajectory = []
+        for _ in range(steps):
             self._sim(session, op="step", n=100)
+            if base.value is not None:
+                self.trajectory.append([round(base.value.x, 3), round(base.value.y, 3)])
             b, j = base.value, joints.value
             if b is None or j is None:
                 continue
@@ -204,19 +225,36 @@ class Episode:
             head = all(abs(pos[n] - v) < 0.01 and abs(vel[n]) < 0.02 for n, v in targets.items())
             if arrived and head:
                 self._sim(session, op="step", n=50)  # let it come to rest
-                return
-        raise TimeoutError(f"the robot did not arrive at view {nbv.step}")
+                return True
+        log.warning("the platform did not reach view %d: taking it from where it stands", nbv.step)
+        self.stop.put(
+            encode(
+                BaseVelocity(
+                    seq=nbv.step, stamp=time.time(), v_x=0.0, v_y=0.0, v_yaw=0.0, timeout=0.05
+                )
+            )
+        )
+        for _ in range(40):
+            self._sim(session, op="step", n=100)
+            j = joints.value
+            pos = dict(zip(j.names, j.position, strict=True))
+            if (
+                all(abs(pos[n] - v) < 0.01 for n, v in targets.items())
+                and base.value.goal_status == "idle"
+            ):
+                break
+        return False
 
     def run(self) -> EpisodeResult:
         c = self.c
-        roi_lo, roi_hi, centre, start = scene_facts(c.scene, c.robot)
+        roi_lo, roi_hi, centre, start, pois = scene_facts(c.scene, c.robot)
         c.out.mkdir(parents=True, exist_ok=True)
         data_dir = c.out / "scene_memory"
         shutil.rmtree(data_dir, ignore_errors=True)
         endpoint = f"tcp/127.0.0.1:{_free_port()}"
         services = [BY_NAME[n] for n in EPISODE_SERVICES]
         supervisor = Supervisor(
-            services, endpoint, c.robot, env=self._env(data_dir, roi_lo, roi_hi, centre),
+            services, endpoint, c.robot, env=self._env(data_dir, roi_lo, roi_hi, centre, pois),
             restart=False,
         )  # fmt: skip
         result = EpisodeResult(
@@ -244,6 +282,7 @@ class Episode:
         joints = Latest(session, k.joints(), JointState)
         frames = Latest(session, k.rgbd("head_rgbd"), RgbdFrame)
         scenes = Latest(session, k.scene(), SceneModel)
+        self.stop = session.declare_publisher(k.cmd_base())
         self._sim(session, op="reset", scene=c.scene, seed=c.seed)
         self._sim(session, op="step", n=10)
         roi = BoxQuery(box_min=roi_lo, box_max=roi_hi)
@@ -260,7 +299,7 @@ class Episode:
             if nbv.terminate:
                 result.terminated_by = "quality" if nbv.reason == "quality" else nbv.reason
                 break
-            self._settle(session, base, joints, nbv, "" if view == 0 else f"view-{view}")
+            reached = self._settle(session, base, joints, nbv, "" if view == 0 else f"view-{view}")
             n_frames = frames.count
             self._sim(session, op="render")
             frame = frames.wait(lambda f, n=n_frames: frames.count > n, 30, "the rendered frame")
@@ -287,7 +326,8 @@ class Episode:
             record = ViewRecord(
                 view, support.precision, support.recall, support.f1, int(stats.unknown),
                 cost, accumulated, scores.inlier_index, scores.overlapping_index, planning_s,
-                pose, float(nbv.information_gain),
+                pose, float(nbv.information_gain), reached, [nbv.x, nbv.y, nbv.yaw],
+                self.trajectory,
             )  # fmt: skip
             result.views.append(record)
             result.final_support_edges = [list(e) for e in support.edges]
@@ -297,6 +337,25 @@ class Episode:
             result.terminated_by = "max_views"
         if not result.terminated_by:
             result.terminated_by = "max_views"
+        self._floor(session, result)
+
+    def _floor(self, session, result: EpisodeResult) -> None:
+        """The obstacles of the final map from above, for the report's map of the views."""
+        from PIL import Image
+
+        box = BoxQuery(box_min=np.full(3, -1e3), box_max=np.full(3, 1e3))
+        piece = self._query(session, self.keys.occupancy("slice"), box, OccupancySlice)
+        v, origin = piece.voxel_size, piece.origin
+        k0, k1 = max(0, int((0.05 - origin[2]) / v)), max(1, int((2.0 - origin[2]) / v))
+        occupied = np.any(piece.states[:, :, k0:k1] == 2, axis=2)
+        seen = np.any(piece.states[:, :, k0:k1] != 0, axis=2)
+        image = np.full(occupied.shape, 255, np.uint8)
+        image[seen] = 230
+        image[occupied] = 60
+        Image.fromarray(image.T[::-1]).save(self.c.out / "floor.png")  # rows: +y up
+        result.floor_png = str(self.c.out / "floor.png")
+        result.floor_origin = [float(origin[0]), float(origin[1])]
+        result.floor_cell = float(v)
 
     def _wait_integrated(self, session, frames: int) -> None:
         deadline = time.monotonic() + 60

@@ -59,10 +59,17 @@ def series_plots(runs: dict[str, list[dict]], out: Path) -> list[Path]:
 
 
 def map_plot(episodes: dict[str, dict], out: Path) -> Path:
-    """The roi from above with each episode's platform poses, numbered, and the path order."""
+    """The roi from above, over the final map's obstacles (dark: occupied, light grey: seen),
+    with each episode's platform poses, numbered, in the order taken."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(5.5, 5.5))
     first = next(iter(episodes.values()))
+    floor = Path(first.get("floor_png") or "/nonexistent")
+    if floor.is_file():
+        image = plt.imread(floor)
+        x0, y0 = first["floor_origin"]
+        w, h = image.shape[1] * first["floor_cell"], image.shape[0] * first["floor_cell"]
+        ax.imshow(image, cmap="gray", vmin=0, vmax=1, extent=(x0, x0 + w, y0, y0 + h))
     (x0, y0, _), (x1, y1, _) = first["roi"]
     ax.add_patch(plt.Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, ls="--", label="roi"))
     cx, cy, _ = first["centre"]
@@ -71,7 +78,11 @@ def map_plot(episodes: dict[str, dict], out: Path) -> Path:
         b = np.array([r["base"] for r in e["views"]])
         if not len(b):
             continue
-        line = ax.plot(b[:, 0], b[:, 1], "o-", alpha=0.8, label=label)[0]
+        line = ax.plot(b[:, 0], b[:, 1], "o", alpha=0.8, label=label)[0]
+        driven = [p for r in e["views"] for p in r.get("trajectory", [])]
+        if driven:
+            d = np.array(driven)
+            ax.plot(d[:, 0], d[:, 1], "-", lw=1, color=line.get_color(), alpha=0.7)
         for i, (x, y, yaw) in enumerate(b):
             ax.annotate(str(i + 1), (x, y), textcoords="offset points", xytext=(4, 4))
             ax.arrow(x, y, 0.2 * np.cos(yaw), 0.2 * np.sin(yaw), width=0.01, color=line.get_color())

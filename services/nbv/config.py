@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from services.common.config import ServiceSettings
 
@@ -16,7 +16,12 @@ class NbvSettings(ServiceSettings):
 
     camera: str = Field("head_rgbd", description="the camera whose views are planned")
     centre: list[float] | None = Field(
-        None, description="view-sphere centre x,y,z (default: map centre at 0.9 m)"
+        None,
+        description="view-sphere centres x,y,z[,x,y,z…] (a scene's points of interest; "
+        "default: the map's middle at 0.9 m)",
+    )
+    first_target: list[float] | None = Field(
+        None, description="x,y,z the first view looks at (default: the first centre)"
     )
     radius: float = Field(1.5, gt=0, description="view-sphere radius r, m (4.1)")
     sampling: Literal["equidistant", "random", "topdown"] = Field(
@@ -45,3 +50,10 @@ class NbvSettings(ServiceSettings):
     roi_min: list[float] | None = Field(None, description="box whose unknown voxels IG counts")
     roi_max: list[float] | None = None
     seed: int = Field(0, description="random sampling and strategy")
+
+    @field_validator("centre")
+    @classmethod
+    def _triples(cls, v: list[float] | None) -> list[float] | None:
+        if v is not None and (not v or len(v) % 3):
+            raise ValueError("centre takes x,y,z triples")
+        return v

@@ -8,7 +8,6 @@ The map arrives as voxel states (uint8: 0 unknown, 1 free, 2 occupied, the scene
 
 from __future__ import annotations
 
-import math
 from itertools import pairwise
 
 import numpy as np
@@ -41,21 +40,94 @@ def _clip(o, u, lo, hi, t0, t1):
     return t0, t1
 
 
-@njit(cache=True, nogil=True)
-def ray_gain(states, origin, voxel, o, u, max_range, box_lo, box_hi):
-    """Unknown voxels inside the box [box_lo, box_hi) (world) on one ray from ``o`` along the
-    unit ``u`` before its first occupied voxel, within ``max_range`` (map frame: ``origin`` at
-    the grid's corner). A ray that misses the box costs nothing; one that leaves it stops."""
+BLOCK = 8  # voxels per side of a block of the skip map
+ALL_UNKNOWN, ALL_FREE, MIXED = 0, 1, 2
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _codes(states, shift):
     nx, ny, nz = states.shape
+    size = 1 << shift
+    bx, by, bz = (nx + size - 1) >> shift, (ny + size - 1) >> shift, (nz + size - 1) >> shift
+    codes = np.empty((bx, by, bz), np.uint8)
+    for i in prange(bx):
+        for j in range(by):
+            for k in range(bz):
+                first = states[i * size, j * size, k * size]
+                code = first if first != OCCUPIED else MIXED
+                for x in range(i * size, min(i * size + size, nx)):
+                    if code == MIXED:
+                        break
+                    for y in range(j * size, min(j * size + size, ny)):
+                        for z in range(k * size, min(k * size + size, nz)):
+                            if states[x, y, z] != first:
+                                code = MIXED
+                codes[i, j, k] = code
+    return codes
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def blocked(states):
+    """The states in 8×8×8 blocks of 512 contiguous bytes: a ray that crosses a block stays in
+    a few cache lines (in C order every step along x or y is a new line). Voxels past the
+    grid's edge are unknown; nothing reads them."""
+    nx, ny, nz = states.shape
+    bx, by, bz = (nx + 7) >> 3, (ny + 7) >> 3, (nz + 7) >> 3
+    out = np.zeros(bx * by * bz * 512, np.uint8)
+    for x in prange(nx):
+        for y in range(ny):
+            row = (((x >> 3) * by + (y >> 3)) * bz) << 9
+            local = ((x & 7) << 6) | ((y & 7) << 3)
+            for z in range(nz):
+                out[row + ((z >> 3) << 9) + local + (z & 7)] = states[x, y, z]
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _at(grid, ix, iy, iz, by, bz):
+    block = ((ix >> 3) * by + (iy >> 3)) * bz + (iz >> 3)
+    return grid[(block << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7)]
+
+
+def block_codes(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Skip maps of 8³ and 32³ blocks: ALL_UNKNOWN, ALL_FREE, or MIXED (occupied voxels, or
+    both): a ray crosses a uniform block in one step, a large one first."""
+    states = np.ascontiguousarray(states, dtype=np.uint8)
+    return _codes(states, 3), _codes(states, 5)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _steps_left(i, s, n, shift):
+    """Voxel steps along one axis before leaving the block (2^shift voxels) of voxel i."""
+    start = (i >> shift) << shift
+    if s > 0:
+        return min(start + (1 << shift), n) - 1 - i
+    return i - start
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _crossings(tm, td, limit, cap):
+    """Boundary crossings tm, tm + td, … strictly before ``limit``, at most ``cap``."""
+    if tm >= limit:
+        return 0
+    return min(int((limit - tm) / td) + 1, cap)
+
+
+@njit(cache=True, nogil=True)
+def ray_gain(grid, shape, codes8, codes32, origin, voxel, o, u, max_range, box_lo, box_hi, roi):
+    """Unknown voxels of the roi (voxel index box ``roi`` = x0, y0, z0, x1, y1, z1; the box
+    [box_lo, box_hi) in the world) on one ray from ``o`` along the unit ``u`` before its first
+    occupied voxel, within ``max_range`` (map frame: ``origin`` at the grid's corner). A ray
+    that misses the box costs nothing, one that leaves it stops. 3D DDA (Amanatides & Woo) that
+    crosses uniform blocks (all unknown or all free, wholly in or out of the roi) in one step:
+    the voxels a DDA visits in a block are 1 + the boundary crossings before it leaves.
+    ``grid``: the states in blocks (``blocked``), ``shape`` the map's."""
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    gby, gbz = (ny + 7) >> 3, (nz + 7) >> 3
     r0, r1 = _clip(o, u, box_lo, box_hi, 0.0, max_range)
     if r0 >= r1:
         return 0
-    b0x = math.floor((box_lo[0] - origin[0]) / voxel + 1e-9)
-    b0y = math.floor((box_lo[1] - origin[1]) / voxel + 1e-9)
-    b0z = math.floor((box_lo[2] - origin[2]) / voxel + 1e-9)
-    b1x = math.ceil((box_hi[0] - origin[0]) / voxel - 1e-9)
-    b1y = math.ceil((box_hi[1] - origin[1]) / voxel - 1e-9)
-    b1z = math.ceil((box_hi[2] - origin[2]) / voxel - 1e-9)
+    b0x, b0y, b0z, b1x, b1y, b1z = roi[0], roi[1], roi[2], roi[3], roi[4], roi[5]
     # clip the segment [0, min(max_range, leaving the box)] to the grid's box
     t0, t1 = 0.0, r1
     for a in range(3):
@@ -84,46 +156,92 @@ def ray_gain(states, origin, voxel, o, u, max_range, box_lo, box_hi):
     limit = t1 - t0
     count = 0
     t = 0.0
+    block = -1
     while t <= limit:
-        s = states[ix, iy, iz]
+        s = _at(grid, ix, iy, iz, gby, gbz)
         if s == OCCUPIED:
             break
-        if s == UNKNOWN and b0x <= ix < b1x and b0y <= iy < b1y and b0z <= iz < b1z:
+        inside = b0x <= ix < b1x and b0y <= iy < b1y and b0z <= iz < b1z
+        if s == UNKNOWN and inside:
             count += 1
+        here = ((ix >> 3) * 4096 + (iy >> 3)) * 4096 + (iz >> 3)
+        if here != block:  # entered a block: cross it in one step if it is uniform
+            block = here
+            for level in range(2):
+                shift = 5 if level == 0 else 3
+                size = 1 << shift
+                if level == 0:
+                    code = codes32[ix >> 5, iy >> 5, iz >> 5]
+                else:
+                    code = codes8[ix >> 3, iy >> 3, iz >> 3]
+                if code == MIXED:
+                    continue
+                gx, gy, gz = (ix >> shift) << shift, (iy >> shift) << shift, (iz >> shift) << shift
+                whole_in = b0x <= gx and gx + size <= b1x and b0y <= gy and gy + size <= b1y
+                whole_in = whole_in and b0z <= gz and gz + size <= b1z
+                whole_out = gx + size <= b0x or gx >= b1x or gy + size <= b0y or gy >= b1y
+                whole_out = whole_out or gz + size <= b0z or gz >= b1z
+                if not (whole_in or whole_out):
+                    continue
+                nxl = _steps_left(ix, sx, nx, shift)
+                nyl = _steps_left(iy, sy, ny, shift)
+                nzl = _steps_left(iz, sz, nz, shift)
+                leave = min(tmx + nxl * tdx, tmy + nyl * tdy, tmz + nzl * tdz)
+                if leave > limit:
+                    continue
+                kx = _crossings(tmx, tdx, leave, nxl)
+                ky = _crossings(tmy, tdy, leave, nyl)
+                kz = _crossings(tmz, tdz, leave, nzl)
+                if code == ALL_UNKNOWN and whole_in:
+                    count += kx + ky + kz
+                ix += sx * kx
+                iy += sy * ky
+                iz += sz * kz
+                tmx += tdx * kx
+                tmy += tdy * ky
+                tmz += tdz * kz
+                break
+        # the step to the nearest boundary, branch-free (selects, not jumps: which axis comes
+        # next follows no pattern a branch predictor could learn)
         cx = tmx <= tmy and tmx <= tmz
         cy = not cx and tmy <= tmz
-        if cx:
-            t = tmx
-            ix += sx
-            tmx += tdx
-        elif cy:
-            t = tmy
-            iy += sy
-            tmy += tdy
-        else:
-            t = tmz
-            iz += sz
-            tmz += tdz
+        cz = not cx and not cy
+        t = tmx if cx else (tmy if cy else tmz)
+        ix = ix + sx if cx else ix
+        iy = iy + sy if cy else iy
+        iz = iz + sz if cz else iz
+        tmx = tmx + tdx if cx else tmx
+        tmy = tmy + tdy if cy else tmy
+        tmz = tmz + tdz if cz else tmz
         if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
             break
     return count
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _gains(states, origin, voxel, poses, dirs, max_range, box_lo, box_hi, out):
-    """out[v] = Σ over the rays ``dirs`` (camera frame, unit) of view ``poses[v]``."""
-    for v in prange(poses.shape[0]):
+def _gains(grid, shape, codes8, codes32, origin, voxel, poses, dirs, max_range, lo, hi, roi, out):
+    """out[v] = Σ over the rays ``dirs`` (camera frame, unit) of view ``poses[v]``; the
+    (view, chunk of rays) pairs in parallel, so one view uses every core too."""
+    per = 256
+    chunks = (dirs.shape[0] + per - 1) // per
+    partial = np.zeros(poses.shape[0] * chunks, np.int64)
+    for job in prange(poses.shape[0] * chunks):
+        v, c = job // chunks, job % chunks
         R = poses[v, :3, :3]
         o = poses[v, :3, 3].copy()
         total = 0
         u = np.empty(3)
-        for r in range(dirs.shape[0]):
+        for r in range(c * per, min(dirs.shape[0], (c + 1) * per)):
             d = dirs[r]
             u[0] = R[0, 0] * d[0] + R[0, 1] * d[1] + R[0, 2] * d[2]
             u[1] = R[1, 0] * d[0] + R[1, 1] * d[1] + R[1, 2] * d[2]
             u[2] = R[2, 0] * d[0] + R[2, 1] * d[1] + R[2, 2] * d[2]
-            total += ray_gain(states, origin, voxel, o, u, max_range, box_lo, box_hi)
-        out[v] = total
+            total += ray_gain(
+                grid, shape, codes8, codes32, origin, voxel, o, u, max_range, lo, hi, roi
+            )
+        partial[job] = total
+    for v in range(poses.shape[0]):
+        out[v] = partial[v * chunks : (v + 1) * chunks].sum()
 
 
 def pixel_rays(width: int, height: int, fx: float, fy: float, cx: float, cy: float, every: int = 1):
@@ -142,29 +260,34 @@ def information_gain(
     rays: np.ndarray,
     max_range: float = 3.0,
     box: tuple[np.ndarray, np.ndarray] | None = None,
+    codes: tuple[np.ndarray, np.ndarray] | None = None,
+    grid: np.ndarray | None = None,
 ) -> np.ndarray:
     """IG(v) (Eq. 4.6) of each view ``poses[v]`` (T_world_camera) for the camera ``rays``,
-    counting the unknown voxels inside ``box`` (default: the whole map), e.g. the scene's roi."""
+    counting the unknown voxels inside ``box`` (default: the whole map), e.g. the scene's roi.
+    ``codes``, ``grid``: the map's block_codes and blocked states, when the caller has them."""
     origin = np.asarray(origin, np.float64)
+    states = np.ascontiguousarray(states, dtype=np.uint8)
     if box is None:
         box = (origin, origin + np.array(states.shape) * voxel)
-    # the voxels the box touches: snapped outwards to the grid
-    box = (
-        origin + np.floor((np.asarray(box[0]) - origin) / voxel + 1e-9) * voxel,
-        origin + np.ceil((np.asarray(box[1]) - origin) / voxel - 1e-9) * voxel,
-    )
+    # the voxels the box touches, as indices and as the box snapped outwards to the grid
+    i0 = np.floor((np.asarray(box[0]) - origin) / voxel + 1e-9).astype(np.int64)
+    i1 = np.ceil((np.asarray(box[1]) - origin) / voxel - 1e-9).astype(np.int64)
     poses = np.ascontiguousarray(np.asarray(poses, np.float64).reshape(-1, 4, 4))
     out = np.zeros(len(poses), np.int64)
     if len(poses):
         _gains(
-            np.ascontiguousarray(states, dtype=np.uint8),
+            blocked(states) if grid is None else grid,
+            np.array(states.shape, np.int64),
+            *(block_codes(states) if codes is None else codes),
             origin,
             float(voxel),
             poses,
             np.ascontiguousarray(rays, np.float64),
             float(max_range),
-            np.asarray(box[0], np.float64),
-            np.asarray(box[1], np.float64),
+            origin + i0 * voxel,
+            origin + i1 * voxel,
+            np.concatenate([i0, i1]),
             out,
         )
     return out
@@ -183,15 +306,17 @@ def hierarchical(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(IG of every view, the indices of the best k, whose IG is then from every ray). The
     coarse IG is scaled by ``every`` so that both are on one scale."""
+    states = np.ascontiguousarray(states, dtype=np.uint8)
+    codes, grid = block_codes(states), blocked(states)
     coarse = information_gain(
-        states, origin, voxel, poses, pixel_rays(*intrinsics, every), max_range, box
+        states, origin, voxel, poses, pixel_rays(*intrinsics, every), max_range, box, codes, grid
     )
     gains = coarse.astype(np.float64) * every
     if best_k <= 0 or not len(poses):
         return gains, np.zeros(0, int)
     best = np.argsort(-coarse, kind="stable")[: min(best_k, len(poses))]
     fine = information_gain(
-        states, origin, voxel, poses[best], pixel_rays(*intrinsics, 1), max_range, box
+        states, origin, voxel, poses[best], pixel_rays(*intrinsics, 1), max_range, box, codes, grid
     )
     gains[best] = fine
     return gains, best

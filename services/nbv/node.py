@@ -85,13 +85,20 @@ class NbvNode:
         )
         return piece
 
-    def centre(self, piece: OccupancySlice | None) -> np.ndarray:
+    def centres(self, piece: OccupancySlice | None) -> np.ndarray:
+        """The view spheres' centres (m, 3): the settings' (a scene's points of interest), or
+        the map's middle at 0.9 m."""
         if self.s.centre:
-            return np.array(self.s.centre, float)
+            return np.array(self.s.centre, float).reshape(-1, 3)
         if piece is None:
             piece = self._map()
         mid = piece.origin + np.array(piece.states.shape) * piece.voxel_size / 2
-        return np.array([mid[0], mid[1], 0.9])
+        return np.array([[mid[0], mid[1], 0.9]])
+
+    def first_target(self) -> np.ndarray:
+        if self.s.first_target:
+            return np.array(self.s.first_target, float)
+        return self.centres(None)[0]
 
     def _head(self, joints: dict[str, float], step: int) -> None:
         names = list(joints)
@@ -115,7 +122,7 @@ class NbvNode:
         current = self._current()
         strategy = self.s.strategy
         if request.initial:
-            centre = self.centre(None)
+            centre = self.first_target()
             joints = self.planner.look(current, centre)
             T = self.planner.ik.camera_pose(
                 current, np.array([joints[n] for n in self.planner.ik.names])
@@ -132,16 +139,16 @@ class NbvNode:
             return reply
         piece = self._map()
         (scene,) = self.node.query(self.node.keys.scene(), None, SceneModel, 30) or [None]
-        centre = self.centre(piece)
+        centres = self.centres(piece)
         result = self.planner.plan(
-            centre, scene, piece.states, piece.origin, piece.voxel_size, current,
+            centres, scene, piece.states, piece.origin, piece.voxel_size, current,
             request.visited, request.step,
         )  # fmt: skip
         c = result.candidates
         self.out_candidates.put(
             ViewCandidates(
                 seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
-                sampling=self.s.sampling, center=centre,
+                sampling=self.s.sampling, center=centres[0],
                 views=c.poses if len(c.poses) else np.zeros((0, 4, 4)),
                 base_pose=c.base if len(c.base) else np.zeros((0, 3)),
                 information_gain=result.gain.astype(float), cost=result.cost,
@@ -156,7 +163,7 @@ class NbvNode:
             reply = NextBestView(
                 seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
                 view=np.eye(4), x=current[0], y=current[1], yaw=current[2], joint_names=[],
-                joint_positions=np.zeros(0), target=centre, information_gain=0.0,
+                joint_positions=np.zeros(0), target=centres[0], information_gain=0.0,
                 cost=0.0, utility=0.0, terminate=True,
                 reason="no_candidates",
             )  # fmt: skip
@@ -167,7 +174,7 @@ class NbvNode:
             seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
             view=c.poses[b], x=float(c.base[b][0]), y=float(c.base[b][1]),
             yaw=float(c.base[b][2]), joint_names=list(joints),
-            joint_positions=np.array(list(joints.values())), target=centre,
+            joint_positions=np.array(list(joints.values())), target=c.targets[b],
             information_gain=float(result.gain[b]), cost=float(result.cost[b]),
             utility=float(result.utility[b]), terminate=result.terminate, reason=result.reason,
         )  # fmt: skip

@@ -118,8 +118,10 @@ class PathPlanner:
 
     def _space_information(self):
         from ompl import base as ob
+        from ompl import util as ou
 
         if self._si is None:
+            ou.setLogLevel(ou.LOG_WARN)  # not a line per query
             space = ob.SE2StateSpace()
             bounds = ob.RealVectorBounds(2)
             lo = self.floor.origin

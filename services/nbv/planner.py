@@ -50,7 +50,8 @@ class PlannerConfig:
 
 @dataclass
 class Candidates:
-    t: np.ndarray  # (n, 3) sphere points relative to the centre
+    t: np.ndarray  # (n, 3) sphere points relative to their centre
+    targets: np.ndarray  # (n, 3) the centre each view looks at
     poses: np.ndarray  # (n, 4, 4) T_world_camera reached by IK
     base: np.ndarray  # (n, 3)
     joints: list[dict[str, float]]
@@ -59,7 +60,7 @@ class Candidates:
 
 @dataclass
 class PlanResult:
-    centre: np.ndarray
+    centres: np.ndarray
     candidates: Candidates
     gain: np.ndarray
     cost: np.ndarray
@@ -110,6 +111,7 @@ class Planner:
         keep = np.array(keep, int)
         return Candidates(
             t[keep],
+            np.tile(np.asarray(centre, float), (len(keep), 1)),
             np.array(poses).reshape(-1, 4, 4),
             np.array(bases).reshape(-1, 3),
             joints,
@@ -126,9 +128,25 @@ class Planner:
                 best = sol
         return best.joints if best is not None else {}
 
+    def candidates(self, centres, scene, visited, occupancy) -> Candidates:
+        """The reachable views of every view sphere (one per centre: the scene's centre or
+        its points of interest, 4.1)."""
+        parts = [
+            self.reachable_views(c, *self.sample(c, scene, visited, occupancy))
+            for c in np.asarray(centres, float).reshape(-1, 3)
+        ]
+        return Candidates(
+            np.concatenate([p.t for p in parts]),
+            np.concatenate([p.targets for p in parts]),
+            np.concatenate([p.poses for p in parts]),
+            np.concatenate([p.base for p in parts]),
+            [j for p in parts for j in p.joints],
+            np.concatenate([p.saliency for p in parts]),
+        )
+
     def plan(
         self,
-        centre: np.ndarray,
+        centres: np.ndarray,
         scene: SceneModel | None,
         states: np.ndarray,
         origin: np.ndarray,
@@ -141,8 +159,7 @@ class Planner:
         times = {}
         t0 = time.perf_counter()
         occupancy = (states, origin, voxel)
-        t, s = self.sample(centre, scene, visited, occupancy)
-        cands = self.reachable_views(centre, t, s)
+        cands = self.candidates(centres, scene, visited, occupancy)
         times["sampling_ms"] = (time.perf_counter() - t0) * 1e3
         t1 = time.perf_counter()
         gain, _ = ig.hierarchical(
@@ -175,7 +192,7 @@ class Planner:
                 terminate, reason = True, "quality"
         times["total_ms"] = (time.perf_counter() - t0) * 1e3
         return PlanResult(
-            centre,
+            np.asarray(centres, float).reshape(-1, 3),
             cands,
             gain,
             cost,

@@ -71,3 +71,27 @@ def test_hierarchical_evaluation_picks_the_best_view_of_the_full_one():
         agree += int(np.argmax(gains)) == int(np.argmax(full))
     assert agree >= 95, agree
     print(f"hierarchical agrees with full on {agree} of 100 maps")
+
+
+def test_uniform_blocks_are_crossed_in_one_step_without_changing_the_count():
+    """A map of large uniform regions (what the skip map is for) with occupied and mixed
+    blobs: the same counts as the per-voxel traversal, with the roi cutting through blocks."""
+    rng = np.random.default_rng(5)
+    states = np.zeros((90, 80, 60), np.uint8)  # unknown
+    states[:, :40, :] = 1  # free half
+    for _ in range(12):
+        lo = rng.integers(0, [80, 70, 50])
+        hi = lo + rng.integers(2, 10, 3)
+        states[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]] = rng.choice([0, 1, 2])
+    noisy = rng.random(states.shape) < 0.002
+    states[noisy] = 2
+    origin = np.array([0.0, 0.0, 0.0])
+    centre = np.array([0.4513, 0.4027, 0.3011])
+    rays = pixel_rays(64, 48, 58.0, 58.0, 31.5, 23.5, every=3)
+    box = (np.array([0.123, 0.05, 0.077]), np.array([0.79, 0.705, 0.55]))
+    for t in ([0.35, 0.1, 0.2], [-0.3, -0.25, 0.15], [0.05, 0.4, 0.25]):
+        T = vs.view_pose(centre, np.array(t))
+        for b in (None, box):
+            ours = information_gain(states, origin, VOXEL, T[None], rays, 0.8, b)[0]
+            ref = sum(brute_force_gain(states, origin, VOXEL, T, d, 0.8, b) for d in rays)
+            assert ours == ref and ours > 1000

@@ -1,0 +1,46 @@
+"""Whole exploration episodes, every service a process on a loopback router, the sim in
+lockstep: the thesis's table-top (Fig. 4.8) and booth (Fig. 4.11, 4.12) experiments."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from itertools import pairwise
+
+import numpy as np
+
+from tests.conftest import ROOT
+
+AVS = [sys.executable, "-m", "avs.cli"]
+
+
+def run(args: list[str], timeout: float) -> subprocess.CompletedProcess:
+    out = subprocess.run([*AVS, *args], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return out
+
+
+def test_tabletop_occluded_support_graph_complete_by_view_5_and_ends_by_itself(tmp_path):
+    out = run(
+        ["explore", "--scene", "tabletop_occluded", "--strategy", "utility", "--fusion", "sg",
+         "--out", str(tmp_path)],
+        timeout=600,
+    )  # fmt: skip
+    assert "view 1/10" in out.stderr  # the progress bar
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    views = m["views"]
+    f1 = [v["support_f1"] for v in views]
+    assert max(f1[:5]) >= 0.9, f1
+    assert f1[0] < 0.9  # the first view cannot see what supports the occluded box
+    assert m["terminated_by"] == "quality" and len(views) < 10  # it stopped by itself
+    # the occluded support edges are found: the box behind the front one stands on the table
+    edges = {tuple(e) for e in m["final_support_edges"]}
+    assert ("table", "box_base") in edges and ("box_base", "cylinder_top") in edges
+    unknown = [v["unknown_voxels"] for v in views]
+    assert all(b < a for a, b in pairwise(unknown))
+    cost = [v["accumulated_path_cost"] for v in views]
+    assert cost[0] == 0 and all(b >= a for a, b in pairwise(cost))
+    assert np.allclose(views[0]["base"], [0, 0, 0], atol=0.02)  # the first view: robot_start
+    page = (tmp_path / "report.html").read_text()
+    assert page.count("<img") == 4 and "data:image/png;base64," in page
