@@ -22,6 +22,14 @@ from services.nbv.utility import utility
 SAMPLINGS = ("equidistant", "random", "topdown")
 
 
+def seed_ompl(seed: int) -> None:
+    """OMPL seeds its random generators from the clock unless told otherwise: with a seed the
+    planned paths, and so the episodes, repeat. It must come before OMPL's first generator."""
+    from ompl import util as ou
+
+    ou.RNG.setSeed(seed + 1)  # OMPL takes seeds > 0
+
+
 @dataclass
 class PlannerConfig:
     radius: float = 1.5  # view sphere r (4.1)
@@ -77,6 +85,7 @@ class Planner:
         self.config = config
         self.ik = HeadIK(mjcf, camera, robot)
         self.rng = np.random.default_rng(config.seed)
+        seed_ompl(config.seed)
         self.first_gain: float | None = None  # the best predicted gain of the first step
 
     def sample(self, centre, scene: SceneModel | None, visited: np.ndarray, occupancy):
@@ -144,6 +153,26 @@ class Planner:
             np.concatenate([p.saliency for p in parts]),
         )
 
+    @staticmethod
+    def visible(cands: Candidates, occupancy) -> Candidates:
+        """Only views that see their target: a single ray from the camera to the centre it looks
+        at meets no occupied voxel (before the last 15 cm: the target lies on a surface). A
+        view behind a known wall is no view of the scene, however much unknown space is
+        around it."""
+        keep = [
+            i
+            for i in range(len(cands.t))
+            if topdown.line_of_sight(*occupancy, cands.targets[i], cands.poses[i][:3, 3], 0.15)
+        ]
+        return Candidates(
+            cands.t[keep],
+            cands.targets[keep],
+            cands.poses[keep],
+            cands.base[keep],
+            [cands.joints[i] for i in keep],
+            cands.saliency[keep],
+        )
+
     def plan(
         self,
         centres: np.ndarray,
@@ -159,7 +188,7 @@ class Planner:
         times = {}
         t0 = time.perf_counter()
         occupancy = (states, origin, voxel)
-        cands = self.candidates(centres, scene, visited, occupancy)
+        cands = self.visible(self.candidates(centres, scene, visited, occupancy), occupancy)
         times["sampling_ms"] = (time.perf_counter() - t0) * 1e3
         t1 = time.perf_counter()
         gain, _ = ig.hierarchical(

@@ -44,3 +44,33 @@ def test_tabletop_occluded_support_graph_complete_by_view_5_and_ends_by_itself(t
     assert np.allclose(views[0]["base"], [0, 0, 0], atol=0.02)  # the first view: robot_start
     page = (tmp_path / "report.html").read_text()
     assert page.count("<img") == 4 and "data:image/png;base64," in page
+
+
+def test_booth_occupancy_sees_most_and_utility_travels_least(tmp_path):
+    """Fig. 4.11 / 4.12 over 3 seeds, 6 views each, view spheres around the three meeting
+    points: greedy IG (occupancy) leaves the fewest unknown voxels, the utility (IG against
+    path cost) drives the least; random is the baseline. Medians over the seeds (a 2 cm map
+    keeps the nine episodes to a few minutes)."""
+    out = run(
+        ["compare", "--scene", "booth", "--strategies", "utility,occupancy,random",
+         "--seeds", "3", "--views", "6", "--voxel", "0.02", "--out", str(tmp_path)],
+        timeout=1500,
+    )  # fmt: skip
+    runs = json.loads((tmp_path / "metrics.json").read_text())
+    assert set(runs) == {"utility", "occupancy", "random"}
+    unknown, cost = {}, {}
+    for strategy, episodes in runs.items():
+        assert [e["seed"] for e in episodes] == [0, 1, 2]
+        assert all(len(e["views"]) == 6 for e in episodes)
+        for e in episodes:  # every strategy explores: fewer unknown voxels after each view
+            u = [v["unknown_voxels"] for v in e["views"]]
+            assert all(b <= a for a, b in pairwise(u)) and u[-1] < 0.9 * u[0]
+        unknown[strategy] = float(np.median([e["views"][-1]["unknown_voxels"] for e in episodes]))
+        cost[strategy] = float(
+            np.median([e["views"][-1]["accumulated_path_cost"] for e in episodes])
+        )
+    assert unknown["occupancy"] < min(unknown["utility"], unknown["random"]), unknown
+    assert cost["utility"] < min(cost["occupancy"], cost["random"]), cost
+    assert "utility" in out.stdout and (tmp_path / "report.html").is_file()
+    for name in ("f1.png", "unknown_voxels.png", "path_cost.png", "views_map.png"):
+        assert (tmp_path / name).stat().st_size > 1000
