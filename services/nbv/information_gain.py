@@ -106,11 +106,12 @@ def _steps_left(i, s, n, shift):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _crossings(tm, td, limit, cap):
-    """Boundary crossings tm, tm + td, … strictly before ``limit``, at most ``cap``."""
+def _crossings(tm, inv_td, limit, cap):
+    """Boundary crossings tm, tm + td, … strictly before ``limit``, at most ``cap``
+    (``inv_td`` = 1 / td: a multiplication, not a division, on the hot path)."""
     if tm >= limit:
         return 0
-    return min(int((limit - tm) / td) + 1, cap)
+    return min(int((limit - tm) * inv_td) + 1, cap)
 
 
 @njit(cache=True, nogil=True)
@@ -154,6 +155,7 @@ def ray_gain(grid, shape, codes8, codes32, origin, voxel, o, u, max_range, box_l
     sy, tmy, tdy = _axis(py, u[1], voxel, iy)
     sz, tmz, tdz = _axis(pz, u[2], voxel, iz)
     limit = t1 - t0
+    itx, ity, itz = 1.0 / tdx, 1.0 / tdy, 1.0 / tdz
     count = 0
     t = 0.0
     block = -1
@@ -189,9 +191,9 @@ def ray_gain(grid, shape, codes8, codes32, origin, voxel, o, u, max_range, box_l
                 leave = min(tmx + nxl * tdx, tmy + nyl * tdy, tmz + nzl * tdz)
                 if leave > limit:
                     continue
-                kx = _crossings(tmx, tdx, leave, nxl)
-                ky = _crossings(tmy, tdy, leave, nyl)
-                kz = _crossings(tmz, tdz, leave, nzl)
+                kx = _crossings(tmx, itx, leave, nxl)
+                ky = _crossings(tmy, ity, leave, nyl)
+                kz = _crossings(tmz, itz, leave, nzl)
                 if code == ALL_UNKNOWN and whole_in:
                     count += kx + ky + kz
                 ix += sx * kx
