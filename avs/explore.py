@@ -124,7 +124,14 @@ def scene_facts(scene: str, robot: str) -> tuple:
     else:
         lo, hi = centre - 1.0, centre + 1.0
     pois = np.array([world.info.pois[k] for k in sorted(world.info.pois)]).reshape(-1, 3)
-    return np.asarray(lo), np.asarray(hi), centre, tuple(world.info.robot_start), pois
+    return (
+        np.asarray(lo),
+        np.asarray(hi),
+        centre,
+        tuple(world.info.robot_start),
+        pois,
+        world.info.workspace,
+    )
 
 
 class Latest:
@@ -161,12 +168,16 @@ class Episode:
         self.progress = progress
         self.keys = Keys(config.robot)
 
-    def _env(self, data_dir: Path, roi_lo, roi_hi, centre, pois) -> dict[str, str]:
+    def _env(self, data_dir: Path, roi_lo, roi_hi, centre, pois, workspace) -> dict[str, str]:
         c = self.c
         lo, hi = roi_lo - 1.0, roi_hi + 1.0
         lo[2], hi[2] = -0.05, max(2.2, hi[2])
         csv = lambda v: ",".join(f"{x:.4f}" for x in v)  # noqa: E731
-        return {
+        extra = {}
+        if workspace is not None:
+            extra = {"AVS_NBV_WORKSPACE_MIN": csv(workspace[0][:2]),
+                     "AVS_NBV_WORKSPACE_MAX": csv(workspace[1][:2])}  # fmt: skip
+        return extra | {
             "AVS_SIM_SCENE": c.scene,
             "AVS_SIM_LOCKSTEP": "true",
             "AVS_SIM_SEED": str(c.seed),
@@ -247,14 +258,15 @@ class Episode:
 
     def run(self) -> EpisodeResult:
         c = self.c
-        roi_lo, roi_hi, centre, start, pois = scene_facts(c.scene, c.robot)
+        roi_lo, roi_hi, centre, start, pois, workspace = scene_facts(c.scene, c.robot)
         c.out.mkdir(parents=True, exist_ok=True)
         data_dir = c.out / "scene_memory"
         shutil.rmtree(data_dir, ignore_errors=True)
         endpoint = f"tcp/127.0.0.1:{_free_port()}"
         services = [BY_NAME[n] for n in EPISODE_SERVICES]
         supervisor = Supervisor(
-            services, endpoint, c.robot, env=self._env(data_dir, roi_lo, roi_hi, centre, pois),
+            services, endpoint, c.robot,
+            env=self._env(data_dir, roi_lo, roi_hi, centre, pois, workspace),
             restart=False,
         )  # fmt: skip
         result = EpisodeResult(

@@ -47,6 +47,8 @@ class NbvSettings(ServiceSettings):
         None, description="box of the occupancy map fetched (default: all)"
     )
     map_max: list[float] | None = None
+    workspace_min: list[float] | None = Field(None, description="x,y: the platform stays above")
+    workspace_max: list[float] | None = Field(None, description="x,y: … and below")
     roi_min: list[float] | None = Field(None, description="box whose unknown voxels IG counts")
     roi_max: list[float] | None = None
     seed: int = Field(0, description="random sampling and strategy")

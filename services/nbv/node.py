@@ -51,6 +51,9 @@ class NbvNode:
                 roi=(np.array(settings.roi_min), np.array(settings.roi_max))
                 if settings.roi_min and settings.roi_max
                 else None,
+                workspace=(np.array(settings.workspace_min), np.array(settings.workspace_max))
+                if settings.workspace_min and settings.workspace_max
+                else None,
             ),
             robot_mjcf(settings.robot),
             settings.camera,

@@ -44,12 +44,26 @@ class FloorMap:
         voxel: float,
         z_range: tuple[float, float] = (0.05, 2.0),
         keep_free: list[tuple[float, float, float]] = (),
+        unseen_inside: tuple[np.ndarray, np.ndarray] | None = None,
+        unseen_height: float = 1.3,
     ) -> FloorMap:
         """Obstacles: occupied voxels between the heights ``z_range``; discs (x, y, radius) in
-        ``keep_free`` are cleared (the robot's own body, seen by its camera)."""
+        ``keep_free`` are cleared (the robot's own body, seen by its camera). Inside the xy box
+        ``unseen_inside`` (the scene's roi) a column never seen up to ``unseen_height`` is an
+        obstacle too: the robot does not drive through the part of the scene it has not looked
+        at (furniture may stand there); outside it, unknown floor is taken as free."""
         k0 = max(0, int((z_range[0] - origin[2]) / voxel))
         k1 = max(k0, math.ceil((z_range[1] - origin[2]) / voxel))
         obstacle = np.any(states[:, :, k0:k1] == OCCUPIED, axis=2)
+        if unseen_inside is not None:
+            kh = max(k0 + 1, math.ceil((unseen_height - origin[2]) / voxel))
+            unseen = np.all(states[:, :, k0:kh] == 0, axis=2)
+            lo = np.floor((np.asarray(unseen_inside[0])[:2] - origin[:2]) / voxel).astype(int)
+            hi = np.ceil((np.asarray(unseen_inside[1])[:2] - origin[:2]) / voxel).astype(int)
+            lo, hi = np.clip(lo, 0, obstacle.shape), np.clip(hi, 0, obstacle.shape)
+            box = np.zeros_like(obstacle)
+            box[lo[0] : hi[0], lo[1] : hi[1]] = True
+            obstacle |= unseen & box
         if keep_free:
             xs = origin[0] + (np.arange(obstacle.shape[0]) + 0.5) * voxel
             ys = origin[1] + (np.arange(obstacle.shape[1]) + 0.5) * voxel

@@ -54,6 +54,7 @@ class PlannerConfig:
     height_tol: float = 0.05
     seed: int = 0
     roi: tuple[np.ndarray, np.ndarray] | None = None  # IG counts the unknown voxels in here
+    workspace: tuple[np.ndarray, np.ndarray] | None = None  # (x, y) box the platform stays in
 
 
 @dataclass
@@ -110,6 +111,9 @@ class Planner:
             if not lo - tol <= centre[2] + ti[2] <= hi + tol:
                 continue  # no torso height puts the camera there: skip the IK
             base = view_sphere.platform_pose(centre, ti)
+            w = self.config.workspace
+            if w is not None and not np.all((w[0][:2] <= base[:2]) & (base[:2] <= w[1][:2])):
+                continue  # outside where the platform may go
             sol = self.ik.solve(base, centre, centre[2] + ti[2], height_tol=self.config.height_tol)
             if sol is None:
                 continue
@@ -198,7 +202,11 @@ class Planner:
         times["information_gain_ms"] = (time.perf_counter() - t1) * 1e3
         t2 = time.perf_counter()
         floor = FloorMap.from_states(
-            states, origin, voxel, keep_free=[(current[0], current[1], c.footprint + 0.1)]
+            states,
+            origin,
+            voxel,
+            keep_free=[(current[0], current[1], c.footprint + 0.1)],
+            unseen_inside=c.roi,
         )
         planner = PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
         cost = np.full(len(gain), math.inf)
@@ -217,7 +225,9 @@ class Planner:
                 self.first_gain = float(gain[reachable].max())
             if step >= c.max_views:
                 terminate, reason = True, "max_views"
-            elif gain[best] < c.lambda_quality * max(self.first_gain, 1.0):
+            elif gain[reachable].max() < c.lambda_quality * max(self.first_gain, 1.0):
+                # no view left that would add much (the best one's gain, whichever strategy
+                # picks: a random pick of a poor view is no reason to stop)
                 terminate, reason = True, "quality"
         times["total_ms"] = (time.perf_counter() - t0) * 1e3
         return PlanResult(

@@ -3,7 +3,8 @@
 A scene is an MJCF file. Its worldbody holds static geoms and bodies (floor, tables, walls) and
 free bodies (objects, each made of box, cylinder and sphere geoms). It must have a site
 ``robot_start`` (position and yaw of the robot); it may have a box site ``roi`` (the region whose
-unknown voxels are counted) and sites ``poi_*`` (points of interest). Every problem is reported
+unknown voxels are counted), a box site ``workspace`` (where the platform may go, e.g. inside
+a booth's walls) and sites ``poi_*`` (points of interest). Every problem is reported
 as one ``SceneError`` line that names the file.
 """
 
@@ -48,6 +49,7 @@ class SceneInfo:
     robot_start: tuple[float, float, float]  # x, y, yaw
     robot_start_z: float
     roi: tuple[np.ndarray, np.ndarray] | None  # (min corner, max corner)
+    workspace: tuple[np.ndarray, np.ndarray] | None = None  # where the platform may go (x, y)
     pois: dict[str, np.ndarray] = field(default_factory=dict)
     objects: list[str] = field(default_factory=list)  # free bodies
     statics: list[str] = field(default_factory=list)  # named static bodies and world geoms
@@ -135,13 +137,17 @@ def _scene_facts(path: Path, model: mujoco.MjModel) -> SceneInfo:
         raise SceneError(path, "has no site named robot_start (where the robot stands)")
     start = names.index("robot_start")
     x, y, z = data.site_xpos[start]
-    roi = None
-    if "roi" in names:
-        i = names.index("roi")
-        half = model.site_size[i]
-        if model.site_type[i] != mujoco.mjtGeom.mjGEOM_BOX:
-            raise SceneError(path, "site roi must be a box (type='box' with size = half extents)")
-        roi = (data.site_xpos[i] - half, data.site_xpos[i] + half)
+    boxes = {}
+    for box in ("roi", "workspace"):
+        if box in names:
+            i = names.index(box)
+            half = model.site_size[i]
+            if model.site_type[i] != mujoco.mjtGeom.mjGEOM_BOX:
+                raise SceneError(
+                    path, f"site {box} must be a box (type='box' with size = half extents)"
+                )
+            boxes[box] = (data.site_xpos[i] - half, data.site_xpos[i] + half)
+    roi = boxes.get("roi")
     pois = {n: data.site_xpos[i].copy() for i, n in enumerate(names) if n.startswith("poi_")}
     objects, statics = [], []
     for b in range(1, model.nbody):
@@ -166,6 +172,7 @@ def _scene_facts(path: Path, model: mujoco.MjModel) -> SceneInfo:
         robot_start=(float(x), float(y), _site_yaw(data.site_xmat[start])),
         robot_start_z=float(z),
         roi=roi,
+        workspace=boxes.get("workspace"),
         pois=pois,
         objects=objects,
         statics=statics,
