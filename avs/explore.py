@@ -214,17 +214,19 @@ class Episode:
             raise RuntimeError(f"sim/control {kw}: {status.error}")
         return status
 
-    def _settle(self, session, base: Latest, joints: Latest, nbv: NextBestView, goal: str) -> bool:
-        """Step the lockstep sim until the platform reached its goal and the head its joints.
-        A platform that has not arrived after twice its estimated time (plus 10 s) is stopped
-        where it is, and the view taken from there: False."""
+    def _settle(
+        self, session, base: Latest, joints: Latest, nbv: NextBestView, goal: str, trajectory: list
+    ) -> bool:
+        """Step the lockstep sim until the platform reached its goal and the head its joints,
+        appending the platform's (x, y) to ``trajectory`` every 0.1 s. A platform that has not
+        arrived after twice its estimated time (plus 10 s) is stopped where it is, and the view
+        taken from there: False."""
         targets = dict(zip(nbv.joint_names, nbv.joint_positions, strict=True))
         steps = int((2 * nbv.cost + 10) / 0.1)
-        self.trajectory = []
         for _ in range(steps):
             self._sim(session, op="step", n=100)
             if base.value is not None:
-                self.trajectory.append([round(base.value.x, 3), round(base.value.y, 3)])
+                trajectory.append([round(base.value.x, 3), round(base.value.y, 3)])
             b, j = base.value, joints.value
             if b is None or j is None:
                 continue
@@ -311,7 +313,8 @@ class Episode:
             if nbv.terminate:
                 result.terminated_by = "quality" if nbv.reason == "quality" else nbv.reason
                 break
-            reached = self._settle(session, base, joints, nbv, "" if view == 0 else f"view-{view}")
+            goal, trajectory = "" if view == 0 else f"view-{view}", []
+            reached = self._settle(session, base, joints, nbv, goal, trajectory)
             n_frames = frames.count
             self._sim(session, op="render")
             frame = frames.wait(lambda f, n=n_frames: frames.count > n, 30, "the rendered frame")
@@ -339,7 +342,7 @@ class Episode:
                 view, support.precision, support.recall, support.f1, int(stats.unknown),
                 cost, accumulated, scores.inlier_index, scores.overlapping_index, planning_s,
                 pose, float(nbv.information_gain), reached, [nbv.x, nbv.y, nbv.yaw],
-                self.trajectory,
+                trajectory,
             )  # fmt: skip
             result.views.append(record)
             result.final_support_edges = [list(e) for e in support.edges]

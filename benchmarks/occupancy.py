@@ -41,10 +41,10 @@ def frame_points(frame) -> tuple[np.ndarray, np.ndarray]:
     return cam @ T[:3, :3].T + T[:3, 3], T[:3, 3].copy()
 
 
-def octomap_counts(tree, lo: np.ndarray, hi: np.ndarray, res: float) -> tuple[int, int, int]:
-    """Unknown / free / occupied voxels of ``res`` in [lo, hi) of an OctoMap tree, leaves
-    expanded to the finest voxels."""
-    shape = np.ceil((hi - lo) / res - 1e-9).astype(int)
+def octomap_states(tree, lo: np.ndarray, shape, res: float) -> np.ndarray:
+    """An OctoMap tree as a dense grid of ``shape`` voxels of ``res`` from ``lo`` (0 unknown,
+    1 free, 2 occupied), its leaves expanded to the finest voxels."""
+    shape = np.asarray(shape, int)
     state = np.zeros(shape, np.uint8)
     for leaf in tree.begin_leafs():
         c = np.asarray(leaf.getCoordinate(), float)
@@ -55,6 +55,12 @@ def octomap_counts(tree, lo: np.ndarray, hi: np.ndarray, res: float) -> tuple[in
             continue
         occupied = tree.isNodeOccupied(leaf.current_node)
         state[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]] = 2 if occupied else 1
+    return state
+
+
+def octomap_counts(tree, lo: np.ndarray, hi: np.ndarray, res: float) -> tuple[int, int, int]:
+    """Unknown / free / occupied voxels of ``res`` in [lo, hi) of an OctoMap tree."""
+    state = octomap_states(tree, lo, np.ceil((hi - lo) / res - 1e-9).astype(int), res)
     return int((state == 0).sum()), int((state == 1).sum()), int((state == 2).sum())
 
 

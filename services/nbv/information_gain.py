@@ -13,16 +13,9 @@ from itertools import pairwise
 import numpy as np
 from numba import njit, prange
 
+from services.common.dda import dda_axis
+
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _axis(p, u, voxel, i):
-    if u > 1e-12:
-        return 1, ((i + 1) * voxel - p) / u, voxel / u
-    if u < -1e-12:
-        return -1, (i * voxel - p) / u, -voxel / u
-    return 1, 1e30, 1e30
 
 
 @njit(cache=True, nogil=True)
@@ -115,14 +108,17 @@ def _crossings(tm, inv_td, limit, cap):
 
 
 @njit(cache=True, nogil=True)
-def ray_gain(grid, shape, codes8, codes32, origin, voxel, o, u, max_range, box_lo, box_hi, roi):
+def ray_gain(
+    grid, shape, codes8, codes32, origin, grid_hi, voxel, o, u, max_range, box_lo, box_hi, roi
+):
     """Unknown voxels of the roi (voxel index box ``roi`` = x0, y0, z0, x1, y1, z1; the box
     [box_lo, box_hi) in the world) on one ray from ``o`` along the unit ``u`` before its first
     occupied voxel, within ``max_range`` (map frame: ``origin`` at the grid's corner). A ray
     that misses the box costs nothing, one that leaves it stops. 3D DDA (Amanatides & Woo) that
     crosses uniform blocks (all unknown or all free, wholly in or out of the roi) in one step:
     the voxels a DDA visits in a block are 1 + the boundary crossings before it leaves.
-    ``grid``: the states in blocks (``blocked``), ``shape`` the map's."""
+    ``grid``: the states in blocks (``blocked``), ``shape`` the map's, ``grid_hi`` its far
+    corner."""
     nx, ny, nz = shape[0], shape[1], shape[2]
     gby, gbz = (ny + 7) >> 3, (nz + 7) >> 3
     r0, r1 = _clip(o, u, box_lo, box_hi, 0.0, max_range)
@@ -130,18 +126,7 @@ def ray_gain(grid, shape, codes8, codes32, origin, voxel, o, u, max_range, box_l
         return 0
     b0x, b0y, b0z, b1x, b1y, b1z = roi[0], roi[1], roi[2], roi[3], roi[4], roi[5]
     # clip the segment [0, min(max_range, leaving the box)] to the grid's box
-    t0, t1 = 0.0, r1
-    for a in range(3):
-        n = nx if a == 0 else (ny if a == 1 else nz)
-        p = o[a] - origin[a]
-        if abs(u[a]) < 1e-12:
-            if p < 0 or p >= n * voxel:
-                return 0
-        else:
-            ta, tb = -p / u[a], (n * voxel - p) / u[a]
-            if ta > tb:
-                ta, tb = tb, ta
-            t0, t1 = max(t0, ta), min(t1, tb)
+    t0, t1 = _clip(o, u, origin, grid_hi, 0.0, r1)
     if t0 >= t1:
         return 0
     px = o[0] - origin[0] + u[0] * (t0 + 1e-9)
@@ -151,9 +136,9 @@ def ray_gain(grid, shape, codes8, codes32, origin, voxel, o, u, max_range, box_l
     ix = min(max(int(px * inv), 0), nx - 1)
     iy = min(max(int(py * inv), 0), ny - 1)
     iz = min(max(int(pz * inv), 0), nz - 1)
-    sx, tmx, tdx = _axis(px, u[0], voxel, ix)
-    sy, tmy, tdy = _axis(py, u[1], voxel, iy)
-    sz, tmz, tdz = _axis(pz, u[2], voxel, iz)
+    sx, tmx, tdx = dda_axis(px, u[0], voxel, ix)
+    sy, tmy, tdy = dda_axis(py, u[1], voxel, iy)
+    sz, tmz, tdz = dda_axis(pz, u[2], voxel, iz)
     limit = t1 - t0
     itx, ity, itz = 1.0 / tdx, 1.0 / tdy, 1.0 / tdz
     count = 0
@@ -227,6 +212,7 @@ def _gains(grid, shape, codes8, codes32, origin, voxel, poses, dirs, max_range, 
     per = 256
     chunks = (dirs.shape[0] + per - 1) // per
     partial = np.zeros(poses.shape[0] * chunks, np.int64)
+    grid_hi = origin + shape * voxel
     for job in prange(poses.shape[0] * chunks):
         v, c = job // chunks, job % chunks
         R = poses[v, :3, :3]
@@ -239,7 +225,7 @@ def _gains(grid, shape, codes8, codes32, origin, voxel, poses, dirs, max_range, 
             u[1] = R[1, 0] * d[0] + R[1, 1] * d[1] + R[1, 2] * d[2]
             u[2] = R[2, 0] * d[0] + R[2, 1] * d[1] + R[2, 2] * d[2]
             total += ray_gain(
-                grid, shape, codes8, codes32, origin, voxel, o, u, max_range, lo, hi, roi
+                grid, shape, codes8, codes32, origin, grid_hi, voxel, o, u, max_range, lo, hi, roi
             )
         partial[job] = total
     for v in range(poses.shape[0]):

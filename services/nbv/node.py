@@ -121,81 +121,75 @@ class NbvNode:
         with self.lock:
             return self._plan(request)
 
+    def _reply(self, step: int, view: np.ndarray, base, joints: dict[str, float], target,
+               **scores) -> NextBestView:  # fmt: skip
+        """The NextBestView of a step, published on nbv/next_view (and the query's reply)."""
+        reply = NextBestView(
+            seq=step, stamp=time.time(), step=step, strategy=self.s.strategy, view=view,
+            x=float(base[0]), y=float(base[1]), yaw=float(base[2]), joint_names=list(joints),
+            joint_positions=np.array(list(joints.values()), float), target=target, **scores,
+        )  # fmt: skip
+        self.out_next.put(reply)
+        return reply
+
     def _plan(self, request: PlanRequest) -> NextBestView:
         current = self._current()
-        strategy = self.s.strategy
+        step = request.step
         if request.initial:
             centre = self.first_target()
             joints = self.planner.look(current, centre)
-            T = self.planner.ik.camera_pose(
-                current, np.array([joints[n] for n in self.planner.ik.names])
-            )
+            T = self.planner.ik.camera_pose(current, np.array(list(joints.values())))
             if request.execute and joints:
-                self._head(joints, request.step)
-            reply = NextBestView(
-                seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
-                view=T, x=current[0], y=current[1], yaw=current[2],
-                joint_names=list(joints), joint_positions=np.array(list(joints.values())),
-                target=centre, information_gain=0.0, cost=0.0, utility=0.0,
-            )  # fmt: skip
-            self.out_next.put(reply)
-            return reply
+                self._head(joints, step)
+            scores = dict(information_gain=0.0, cost=0.0, utility=0.0)
+            return self._reply(step, T, current, joints, centre, **scores)
         piece = self._map()
-        (scene,) = self.node.query(self.node.keys.scene(), None, SceneModel, 30) or [None]
+        scene = None
+        if self.s.sampling == "topdown":  # the only sampling that reads the scene graph
+            (scene,) = self.node.query(self.node.keys.scene(), None, SceneModel, 30) or [None]
         centres = self.centres(piece)
         result = self.planner.plan(
             centres, scene, piece.states, piece.origin, piece.voxel_size, current,
-            request.visited, request.step,
+            request.visited, step,
         )  # fmt: skip
         c = result.candidates
         self.out_candidates.put(
             ViewCandidates(
-                seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
-                sampling=self.s.sampling, center=centres[0],
-                views=c.poses if len(c.poses) else np.zeros((0, 4, 4)),
-                base_pose=c.base if len(c.base) else np.zeros((0, 3)),
-                information_gain=result.gain.astype(float), cost=result.cost,
+                seq=step, stamp=time.time(), step=step, strategy=self.s.strategy,
+                sampling=self.s.sampling, center=centres[0], views=c.poses.reshape(-1, 4, 4),
+                base_pose=c.base.reshape(-1, 3), information_gain=result.gain.astype(float),
+                cost=result.cost, saliency=c.saliency, reachable=np.isfinite(result.cost),
                 utility=np.where(np.isfinite(result.utility), result.utility, -1.0),
-                saliency=c.saliency, reachable=np.isfinite(result.cost),
             )
         )  # fmt: skip
         for key, value in result.timings_ms.items():
             self.node.metrics.gauge(key, value)
         b = result.best
         if b is None:
-            reply = NextBestView(
-                seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
-                view=np.eye(4), x=current[0], y=current[1], yaw=current[2], joint_names=[],
-                joint_positions=np.zeros(0), target=centres[0], information_gain=0.0,
-                cost=0.0, utility=0.0, terminate=True,
-                reason="no_candidates",
+            return self._reply(
+                step, np.eye(4), current, {}, centres[0], information_gain=0.0, cost=0.0,
+                utility=0.0, terminate=True, reason="no_candidates",
             )  # fmt: skip
-            self.out_next.put(reply)
-            return reply
         joints = c.joints[b]
-        reply = NextBestView(
-            seq=request.step, stamp=time.time(), step=request.step, strategy=strategy,
-            view=c.poses[b], x=float(c.base[b][0]), y=float(c.base[b][1]),
-            yaw=float(c.base[b][2]), joint_names=list(joints),
-            joint_positions=np.array(list(joints.values())), target=c.targets[b],
+        reply = self._reply(
+            step, c.poses[b], c.base[b], joints, c.targets[b],
             information_gain=float(result.gain[b]), cost=float(result.cost[b]),
             utility=float(result.utility[b]), terminate=result.terminate, reason=result.reason,
         )  # fmt: skip
-        self.out_next.put(reply)
         if request.execute and not result.terminate:
             path = result.path
             self.out_base.put(
                 BaseGoal(
-                    seq=request.step, stamp=time.time(), goal_id=f"view-{request.step}",
+                    seq=step, stamp=time.time(), goal_id=f"view-{step}",
                     x=reply.x, y=reply.y, yaw=reply.yaw,
                     path=path[1:-1] if path is not None and len(path) > 2 else None,
                 )
             )  # fmt: skip
-            self._head(joints, request.step)
+            self._head(joints, step)
         log.info(
             "planned",
             extra={
-                "step": request.step, "candidates": len(result.gain),
+                "step": step, "candidates": len(result.gain),
                 "reachable": int(np.isfinite(result.cost).sum()), "ig": reply.information_gain,
                 "cost": reply.cost, "terminate": reply.terminate, **result.timings_ms,
             },

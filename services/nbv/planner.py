@@ -19,8 +19,6 @@ from services.nbv.kinematics import HeadIK
 from services.nbv.path_cost import FloorMap, PathPlanner
 from services.nbv.utility import utility
 
-SAMPLINGS = ("equidistant", "random", "topdown")
-
 
 def seed_ompl(seed: int) -> None:
     """OMPL seeds its random generators from the clock unless told otherwise: with a seed the
@@ -69,7 +67,6 @@ class Candidates:
 
 @dataclass
 class PlanResult:
-    centres: np.ndarray
     candidates: Candidates
     gain: np.ndarray
     cost: np.ndarray
@@ -231,7 +228,6 @@ class Planner:
                 terminate, reason = True, "quality"
         times["total_ms"] = (time.perf_counter() - t0) * 1e3
         return PlanResult(
-            np.asarray(centres, float).reshape(-1, 3),
             cands,
             gain,
             cost,

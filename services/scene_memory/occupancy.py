@@ -24,6 +24,8 @@ from numba import njit, prange
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
+from services.common.dda import dda_axis
+
 UNKNOWN = np.int16(-32768)
 SCALE = 1000.0  # stored value = log-odds × SCALE
 STATE_UNKNOWN, STATE_FREE, STATE_OCCUPIED = 0, 1, 2
@@ -113,17 +115,6 @@ def _start(o, u, lo, n, voxel):
     return (ta, tb) if ta <= tb else (tb, ta)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _axis(p, u, voxel, i):
-    """DDA set-up along one axis from the point p (map frame) in voxel i: step, parameter
-    to the next boundary, parameter per voxel."""
-    if u > 1e-12:
-        return 1, ((i + 1) * voxel - p) / u, voxel / u
-    if u < -1e-12:
-        return -1, (i * voxel - p) / u, -voxel / u
-    return 1, 1e30, 1e30
-
-
 @njit(cache=True, nogil=True)
 def _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range):
     """One ray (3D DDA, Amanatides & Woo): sets the visited bit of every voxel on the way
@@ -168,9 +159,9 @@ def _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range):
     jy = min(max(int(qy * inv), 0), ny - 1)
     jz = min(max(int(qz * inv), 0), nz - 1)
     n = abs(jx - ix) + abs(jy - iy) + abs(jz - iz) + (0 if end_inside else 1)
-    sx, tmx, tdx = _axis(px, ux, voxel, ix)
-    sy, tmy, tdy = _axis(py, uy, voxel, iy)
-    sz, tmz, tdz = _axis(pz, uz, voxel, iz)
+    sx, tmx, tdx = dda_axis(px, ux, voxel, ix)
+    sy, tmy, tdy = dda_axis(py, uy, voxel, iy)
+    sz, tmz, tdz = dda_axis(pz, uz, voxel, iz)
     for _ in range(n):
         block, w, bit = _slot(ix, iy, iz, by, bz)
         if not visited[w] & bit:

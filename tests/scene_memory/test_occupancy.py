@@ -138,6 +138,8 @@ def test_same_states_as_octomap_on_a_cluttered_scan():
     """A scan of boxes at several depths, with holes and far returns: our unknown / free /
     occupied counts equal OctoMap's (pyoctomap, insertPointCloud with discretize) within 1 %."""
     pyoctomap = pytest.importorskip("pyoctomap")
+    from benchmarks.occupancy import octomap_states
+
     rng = np.random.default_rng(3)
     depth = np.full((H, W), 1.79, np.float32)
     for _ in range(6):
@@ -155,16 +157,7 @@ def test_same_states_as_octomap_on_a_cluttered_scan():
     points = cam @ T[:3, :3].T + T[:3, 3]
     tree = pyoctomap.OcTree(voxel)
     tree.insertPointCloud(points, T[:3, 3].copy(), 3.0, False, True)
-    shape = m.shape
-    theirs = np.zeros(shape, np.uint8)
-    for leaf in tree.begin_leafs():
-        c = np.asarray(leaf.getCoordinate(), float)
-        half = leaf.getSize() / 2
-        i0 = np.clip(np.round((c - half - LO) / voxel).astype(int), 0, shape)
-        i1 = np.clip(np.round((c + half - LO) / voxel).astype(int), 0, shape)
-        if np.all(i1 > i0):
-            value = STATE_OCCUPIED if tree.isNodeOccupied(leaf.current_node) else STATE_FREE
-            theirs[i0[0] : i1[0], i0[1] : i1[1], i0[2] : i1[2]] = value
+    theirs = octomap_states(tree, LO, m.shape, voxel)
     _, ours = m.states()
     for s in (STATE_UNKNOWN, STATE_FREE, STATE_OCCUPIED):
         a, b = int((ours == s).sum()), int((theirs == s).sum())
