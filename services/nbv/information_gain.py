@@ -4,10 +4,15 @@ occupied voxel, within sensor range. Hierarchical (Vasquez-Gomez et al. 2014): e
 for all candidates, then every ray for the best k.
 
 The map arrives as voxel states (uint8: 0 unknown, 1 free, 2 occupied, the scene memory's
-``memory/occupancy/slice``). One numba kernel walks the rays (3D DDA), views in parallel."""
+``memory/occupancy/slice``). ``SkipMap`` turns them, once per map and region of interest, into
+what a ray needs to know about a voxel: PASS (free, or unknown outside the roi), COUNT (unknown
+in the roi) or STOP (occupied), in 8³ blocks, with, per uniform block and octant of ray
+directions, the size (in blocks) of the uniform cube ahead of it. One numba kernel walks the
+rays (3D DDA) and crosses such a cube in one step; (view, ray chunk) pairs in parallel."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from itertools import pairwise
 
 import numpy as np
@@ -16,6 +21,8 @@ from numba import njit, prange
 from services.common.dda import dda_axis
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
+PASS, COUNT, STOP, MIXED = 0, 1, 2, 3  # what a voxel (or a whole block) is to a ray
+MAX_RADIUS = 64  # blocks (512 voxels) ahead
 
 
 @njit(cache=True, nogil=True)
@@ -33,69 +40,135 @@ def _clip(o, u, lo, hi, t0, t1):
     return t0, t1
 
 
-BLOCK = 8  # voxels per side of a block of the skip map
-ALL_UNKNOWN, ALL_FREE, MIXED = 0, 1, 2
+@njit(cache=True, nogil=True, parallel=True)
+def _classes(states, roi):
+    """The voxels' classes in 8×8×8 blocks of 512 contiguous bytes: a ray that crosses a block
+    stays in a few cache lines (in C order every step along x or y is a new line). Voxels past
+    the grid's edge are PASS; nothing reads them."""
+    nx, ny, nz = states.shape
+    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
+    out = np.zeros(((nx + 7) >> 3) * by * bz * 512, np.uint8)
+    for x in prange(nx):
+        in_x = roi[0] <= x < roi[3]
+        for y in range(ny):
+            in_xy = in_x and roi[1] <= y < roi[4]
+            row = (((x >> 3) * by + (y >> 3)) * bz) << 9
+            local = ((x & 7) << 6) | ((y & 7) << 3)
+            for z in range(nz):
+                s = states[x, y, z]
+                c = PASS
+                if s == OCCUPIED:
+                    c = STOP
+                elif s == UNKNOWN and in_xy and roi[2] <= z < roi[5]:
+                    c = COUNT
+                out[row + ((z >> 3) << 9) + local + (z & 7)] = c
+    return out
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _codes(states, shift):
-    nx, ny, nz = states.shape
-    size = 1 << shift
-    bx, by, bz = (nx + size - 1) >> shift, (ny + size - 1) >> shift, (nz + size - 1) >> shift
-    codes = np.empty((bx, by, bz), np.uint8)
-    for i in prange(bx):
-        for j in range(by):
-            for k in range(bz):
-                first = states[i * size, j * size, k * size]
-                code = first if first != OCCUPIED else MIXED
-                for x in range(i * size, min(i * size + size, nx)):
-                    if code == MIXED:
-                        break
-                    for y in range(j * size, min(j * size + size, ny)):
-                        for z in range(k * size, min(k * size + size, nz)):
-                            if states[x, y, z] != first:
-                                code = MIXED
-                codes[i, j, k] = code
+def _block_codes(classes, shape):
+    """Per 8³ block (flat, C order over blocks): its class when all its voxels share one, else
+    MIXED (voxels past the grid's edge do not count)."""
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    bx, by, bz = (nx + 7) >> 3, (ny + 7) >> 3, (nz + 7) >> 3
+    codes = np.empty(bx * by * bz, np.uint8)
+    for b in prange(bx * by * bz):
+        i, j, k = b // (by * bz), (b // bz) % by, b % bz
+        base = b << 9
+        first = classes[base]
+        code = first if first != STOP else MIXED
+        for x in range(min(8, nx - 8 * i)):
+            for y in range(min(8, ny - 8 * j)):
+                for z in range(min(8, nz - 8 * k)):
+                    if classes[base | (x << 6) | (y << 3) | z] != first:
+                        code = MIXED
+        codes[b] = code
     return codes
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def blocked(states):
-    """The states in 8×8×8 blocks of 512 contiguous bytes: a ray that crosses a block stays in
-    a few cache lines (in C order every step along x or y is a new line). Voxels past the
-    grid's edge are unknown; nothing reads them."""
-    nx, ny, nz = states.shape
-    bx, by, bz = (nx + 7) >> 3, (ny + 7) >> 3, (nz + 7) >> 3
-    out = np.zeros(bx * by * bz * 512, np.uint8)
-    for x in prange(nx):
-        for y in range(ny):
-            row = (((x >> 3) * by + (y >> 3)) * bz) << 9
-            local = ((x & 7) << 6) | ((y & 7) << 3)
-            for z in range(nz):
-                out[row + ((z >> 3) << 9) + local + (z & 7)] = states[x, y, z]
-    return out
+def _radii(codes, bx, by, bz):
+    """Per uniform block and octant of ray directions (index 4·[sx > 0] + 2·[sy > 0] +
+    [sz > 0]), the largest r ≤ MAX_RADIUS such that every block of the grid from it up to r
+    blocks ahead along each axis (in the octant's direction) has its class; -1 for MIXED
+    blocks. One sweep per octant, from the far corner: r(b) = 1 + min of r over the 7 blocks
+    ahead of b, all of b's class (the cube of r + 1 is b and their cubes of r); past the grid
+    counts as anything."""
+    n = bx * by * bz
+    radii = np.full((8, n), -1, np.int8)
+    for octant in prange(8):
+        sx, sy, sz = (octant >> 2) * 2 - 1, ((octant >> 1) & 1) * 2 - 1, (octant & 1) * 2 - 1
+        r = radii[octant]
+        for ii in range(bx):
+            i = bx - 1 - ii if sx > 0 else ii
+            for jj in range(by):
+                j = by - 1 - jj if sy > 0 else jj
+                for kk in range(bz):
+                    k = bz - 1 - kk if sz > 0 else kk
+                    b = (i * by + j) * bz + k
+                    if codes[b] == MIXED:
+                        continue
+                    least = MAX_RADIUS - 1
+                    for m in range(1, 8):
+                        x, y, z = i + sx * (m >> 2), j + sy * ((m >> 1) & 1), k + sz * (m & 1)
+                        if x < 0 or y < 0 or z < 0 or x >= bx or y >= by or z >= bz:
+                            continue
+                        nb = (x * by + y) * bz + z
+                        if codes[nb] != codes[b]:
+                            least = -1
+                            break
+                        least = min(least, np.int64(r[nb]))
+                    r[b] = least + 1
+    return radii
+
+
+@dataclass(frozen=True)
+class SkipMap:
+    """What the ray caster needs of one map and roi: voxel classes in 8³ blocks, the blocks'
+    codes and the radii of the uniform cubes ahead of them (octant × block); ``roi``: voxel
+    index box x0, y0, z0, x1, y1, z1 and ``lo``, ``hi`` the same box in the world."""
+
+    classes: np.ndarray
+    codes: np.ndarray
+    radii: np.ndarray
+    shape: np.ndarray
+    origin: np.ndarray
+    voxel: float
+    roi: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @classmethod
+    def build(
+        cls,
+        states: np.ndarray,
+        origin: np.ndarray,
+        voxel: float,
+        box: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> SkipMap:
+        """``box``: the region whose unknown voxels count (default: the whole map)."""
+        origin = np.asarray(origin, np.float64)
+        states = np.ascontiguousarray(states, dtype=np.uint8)
+        shape = np.array(states.shape, np.int64)
+        if box is None:
+            box = (origin, origin + shape * voxel)
+        # the voxels the box touches, as indices and as the box snapped outwards to the grid
+        i0 = np.floor((np.asarray(box[0]) - origin) / voxel + 1e-9).astype(np.int64)
+        i1 = np.ceil((np.asarray(box[1]) - origin) / voxel - 1e-9).astype(np.int64)
+        roi = np.concatenate([i0, i1])
+        classes = _classes(states, roi)
+        codes = _block_codes(classes, shape)
+        radii = _radii(codes, *((shape + 7) >> 3))
+        lo, hi = origin + i0 * voxel, origin + i1 * voxel
+        return cls(classes, codes, radii, shape, origin, float(voxel), roi, lo, hi)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _at(grid, ix, iy, iz, by, bz):
-    block = ((ix >> 3) * by + (iy >> 3)) * bz + (iz >> 3)
-    return grid[(block << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7)]
-
-
-def block_codes(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Skip maps of 8³ and 32³ blocks: ALL_UNKNOWN, ALL_FREE, or MIXED (occupied voxels, or
-    both): a ray crosses a uniform block in one step, a large one first."""
-    states = np.ascontiguousarray(states, dtype=np.uint8)
-    return _codes(states, 3), _codes(states, 5)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _steps_left(i, s, n, shift):
-    """Voxel steps along one axis before leaving the block (2^shift voxels) of voxel i."""
-    start = (i >> shift) << shift
+def _steps_left(i, s, n, lo_block, hi_block):
+    """Voxel steps along one axis from voxel i before leaving the blocks [lo_block, hi_block]."""
     if s > 0:
-        return min(start + (1 << shift), n) - 1 - i
-    return i - start
+        return min((hi_block + 1) << 3, n) - 1 - i
+    return i - max(lo_block << 3, 0)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -108,24 +181,19 @@ def _crossings(tm, inv_td, limit, cap):
 
 
 @njit(cache=True, nogil=True)
-def ray_gain(
-    grid, shape, codes8, codes32, origin, grid_hi, voxel, o, u, max_range, box_lo, box_hi, roi
-):
-    """Unknown voxels of the roi (voxel index box ``roi`` = x0, y0, z0, x1, y1, z1; the box
-    [box_lo, box_hi) in the world) on one ray from ``o`` along the unit ``u`` before its first
-    occupied voxel, within ``max_range`` (map frame: ``origin`` at the grid's corner). A ray
-    that misses the box costs nothing, one that leaves it stops. 3D DDA (Amanatides & Woo) that
-    crosses uniform blocks (all unknown or all free, wholly in or out of the roi) in one step:
-    the voxels a DDA visits in a block are 1 + the boundary crossings before it leaves.
-    ``grid``: the states in blocks (``blocked``), ``shape`` the map's, ``grid_hi`` its far
-    corner."""
+def ray_gain(classes, codes, radii, shape, origin, grid_hi, voxel, o, u, max_range, lo, hi):
+    """Unknown voxels of the roi (the box [lo, hi) in the world) on one ray from ``o`` along the
+    unit ``u`` before its first occupied voxel, within ``max_range`` (map frame: ``origin`` at
+    the grid's corner, ``grid_hi`` its far one). A ray that misses the roi costs nothing, one
+    that leaves it stops. 3D DDA (Amanatides & Woo) that crosses the uniform cube ahead (a
+    SkipMap radius, of the ray's octant) in one step: the voxels a DDA visits in it are 1 +
+    the boundary crossings before it leaves."""
     nx, ny, nz = shape[0], shape[1], shape[2]
     gby, gbz = (ny + 7) >> 3, (nz + 7) >> 3
-    r0, r1 = _clip(o, u, box_lo, box_hi, 0.0, max_range)
+    r0, r1 = _clip(o, u, lo, hi, 0.0, max_range)
     if r0 >= r1:
         return 0
-    b0x, b0y, b0z, b1x, b1y, b1z = roi[0], roi[1], roi[2], roi[3], roi[4], roi[5]
-    # clip the segment [0, min(max_range, leaving the box)] to the grid's box
+    # clip the segment [0, min(max_range, leaving the roi)] to the grid's box
     t0, t1 = _clip(o, u, origin, grid_hi, 0.0, r1)
     if t0 >= t1:
         return 0
@@ -141,53 +209,49 @@ def ray_gain(
     sz, tmz, tdz = dda_axis(pz, u[2], voxel, iz)
     limit = t1 - t0
     itx, ity, itz = 1.0 / tdx, 1.0 / tdy, 1.0 / tdz
+    octant = (sx > 0) * 4 + (sy > 0) * 2 + (sz > 0)
     count = 0
     t = 0.0
     block = -1
     while t <= limit:
-        s = _at(grid, ix, iy, iz, gby, gbz)
-        if s == OCCUPIED:
-            break
-        inside = b0x <= ix < b1x and b0y <= iy < b1y and b0z <= iz < b1z
-        if s == UNKNOWN and inside:
-            count += 1
-        here = ((ix >> 3) * 4096 + (iy >> 3)) * 4096 + (iz >> 3)
-        if here != block:  # entered a block: cross it in one step if it is uniform
+        bx, by, bz = ix >> 3, iy >> 3, iz >> 3
+        here = (bx * gby + by) * gbz + bz
+        if here != block:  # entered a block: cross its uniform cube in one step
             block = here
-            for level in range(2):
-                shift = 5 if level == 0 else 3
-                size = 1 << shift
-                if level == 0:
-                    code = codes32[ix >> 5, iy >> 5, iz >> 5]
-                else:
-                    code = codes8[ix >> 3, iy >> 3, iz >> 3]
-                if code == MIXED:
-                    continue
-                gx, gy, gz = (ix >> shift) << shift, (iy >> shift) << shift, (iz >> shift) << shift
-                whole_in = b0x <= gx and gx + size <= b1x and b0y <= gy and gy + size <= b1y
-                whole_in = whole_in and b0z <= gz and gz + size <= b1z
-                whole_out = gx + size <= b0x or gx >= b1x or gy + size <= b0y or gy >= b1y
-                whole_out = whole_out or gz + size <= b0z or gz >= b1z
-                if not (whole_in or whole_out):
-                    continue
-                nxl = _steps_left(ix, sx, nx, shift)
-                nyl = _steps_left(iy, sy, ny, shift)
-                nzl = _steps_left(iz, sz, nz, shift)
+            code = codes[here]
+            if code != MIXED:
+                r = np.int64(radii[octant, here])
+                nxl = _steps_left(ix, sx, nx, bx - r, bx + r)
+                nyl = _steps_left(iy, sy, ny, by - r, by + r)
+                nzl = _steps_left(iz, sz, nz, bz - r, bz + r)
                 leave = min(tmx + nxl * tdx, tmy + nyl * tdy, tmz + nzl * tdz)
-                if leave > limit:
-                    continue
+                if leave > limit:  # the ray ends in the cube
+                    if code == COUNT:
+                        count += 1 + _crossings(tmx, itx, limit, nxl)
+                        count += _crossings(tmy, ity, limit, nyl)
+                        count += _crossings(tmz, itz, limit, nzl)
+                    return count
                 kx = _crossings(tmx, itx, leave, nxl)
                 ky = _crossings(tmy, ity, leave, nyl)
                 kz = _crossings(tmz, itz, leave, nzl)
-                if code == ALL_UNKNOWN and whole_in:
-                    count += kx + ky + kz
+                if code == COUNT:
+                    count += 1 + kx + ky + kz
                 ix += sx * kx
                 iy += sy * ky
                 iz += sz * kz
                 tmx += tdx * kx
                 tmy += tdy * ky
                 tmz += tdz * kz
+            else:
+                s = classes[(here << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7)]
+                if s == STOP:
+                    break
+                count += s  # COUNT is 1, PASS 0
+        else:
+            s = classes[(here << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7)]
+            if s == STOP:
                 break
+            count += s
         # the step to the nearest boundary, branch-free (selects, not jumps: which axis comes
         # next follows no pattern a branch predictor could learn)
         cx = tmx <= tmy and tmx <= tmz
@@ -206,7 +270,7 @@ def ray_gain(
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _gains(grid, shape, codes8, codes32, origin, voxel, poses, dirs, max_range, lo, hi, roi, out):
+def _gains(classes, codes, radii, shape, origin, voxel, poses, dirs, max_range, lo, hi, out):
     """out[v] = Σ over the rays ``dirs`` (camera frame, unit) of view ``poses[v]``; the
     (view, chunk of rays) pairs in parallel, so one view uses every core too."""
     per = 256
@@ -225,7 +289,7 @@ def _gains(grid, shape, codes8, codes32, origin, voxel, poses, dirs, max_range, 
             u[1] = R[1, 0] * d[0] + R[1, 1] * d[1] + R[1, 2] * d[2]
             u[2] = R[2, 0] * d[0] + R[2, 1] * d[1] + R[2, 2] * d[2]
             total += ray_gain(
-                grid, shape, codes8, codes32, origin, grid_hi, voxel, o, u, max_range, lo, hi, roi
+                classes, codes, radii, shape, origin, grid_hi, voxel, o, u, max_range, lo, hi
             )
         partial[job] = total
     for v in range(poses.shape[0]):
@@ -241,43 +305,28 @@ def pixel_rays(width: int, height: int, fx: float, fy: float, cx: float, cy: flo
 
 
 def information_gain(
-    states: np.ndarray,
+    states: np.ndarray | None,
     origin: np.ndarray,
     voxel: float,
     poses: np.ndarray,
     rays: np.ndarray,
     max_range: float = 3.0,
     box: tuple[np.ndarray, np.ndarray] | None = None,
-    codes: tuple[np.ndarray, np.ndarray] | None = None,
-    grid: np.ndarray | None = None,
+    skip: SkipMap | None = None,
 ) -> np.ndarray:
     """IG(v) (Eq. 4.6) of each view ``poses[v]`` (T_world_camera) for the camera ``rays``,
     counting the unknown voxels inside ``box`` (default: the whole map), e.g. the scene's roi.
-    ``codes``, ``grid``: the map's block_codes and blocked states, when the caller has them."""
-    origin = np.asarray(origin, np.float64)
-    states = np.ascontiguousarray(states, dtype=np.uint8)
-    if box is None:
-        box = (origin, origin + np.array(states.shape) * voxel)
-    # the voxels the box touches, as indices and as the box snapped outwards to the grid
-    i0 = np.floor((np.asarray(box[0]) - origin) / voxel + 1e-9).astype(np.int64)
-    i1 = np.ceil((np.asarray(box[1]) - origin) / voxel - 1e-9).astype(np.int64)
+    ``skip``: the map's SkipMap for that box, when the caller has it (then ``states``,
+    ``origin``, ``voxel`` and ``box`` are not read)."""
+    if skip is None:
+        skip = SkipMap.build(states, origin, voxel, box)
     poses = np.ascontiguousarray(np.asarray(poses, np.float64).reshape(-1, 4, 4))
     out = np.zeros(len(poses), np.int64)
     if len(poses):
         _gains(
-            blocked(states) if grid is None else grid,
-            np.array(states.shape, np.int64),
-            *(block_codes(states) if codes is None else codes),
-            origin,
-            float(voxel),
-            poses,
-            np.ascontiguousarray(rays, np.float64),
-            float(max_range),
-            origin + i0 * voxel,
-            origin + i1 * voxel,
-            np.concatenate([i0, i1]),
-            out,
-        )
+            skip.classes, skip.codes, skip.radii, skip.shape, skip.origin, skip.voxel, poses,
+            np.ascontiguousarray(rays, np.float64), float(max_range), skip.lo, skip.hi, out,
+        )  # fmt: skip
     return out
 
 
@@ -294,17 +343,16 @@ def hierarchical(
 ) -> tuple[np.ndarray, np.ndarray]:
     """(IG of every view, the indices of the best k, whose IG is then from every ray). The
     coarse IG is scaled by ``every`` so that both are on one scale."""
-    states = np.ascontiguousarray(states, dtype=np.uint8)
-    codes, grid = block_codes(states), blocked(states)
+    skip = SkipMap.build(states, origin, voxel, box)
     coarse = information_gain(
-        states, origin, voxel, poses, pixel_rays(*intrinsics, every), max_range, box, codes, grid
+        None, origin, voxel, poses, pixel_rays(*intrinsics, every), max_range, skip=skip
     )
     gains = coarse.astype(np.float64) * every
     if best_k <= 0 or not len(poses):
         return gains, np.zeros(0, int)
     best = np.argsort(-coarse, kind="stable")[: min(best_k, len(poses))]
     fine = information_gain(
-        states, origin, voxel, poses[best], pixel_rays(*intrinsics, 1), max_range, box, codes, grid
+        None, origin, voxel, poses[best], pixel_rays(*intrinsics, 1), max_range, skip=skip
     )
     gains[best] = fine
     return gains, best
@@ -340,4 +388,11 @@ def brute_force_gain(states, origin, voxel, T, direction, max_range, box=None) -
     return int(count)
 
 
-__all__ = ["brute_force_gain", "hierarchical", "information_gain", "pixel_rays", "ray_gain"]
+__all__ = [
+    "SkipMap",
+    "brute_force_gain",
+    "hierarchical",
+    "information_gain",
+    "pixel_rays",
+    "ray_gain",
+]

@@ -8,6 +8,9 @@ import pytest
 
 from services.nbv import view_sphere as vs
 from services.nbv.information_gain import (
+    MAX_RADIUS,
+    MIXED,
+    SkipMap,
     brute_force_gain,
     hierarchical,
     information_gain,
@@ -95,3 +98,37 @@ def test_uniform_blocks_are_crossed_in_one_step_without_changing_the_count():
             ours = information_gain(states, origin, VOXEL, T[None], rays, 0.8, b)[0]
             ref = sum(brute_force_gain(states, origin, VOXEL, T, d, 0.8, b) for d in rays)
             assert ours == ref and ours > 1000
+
+
+def test_skip_map_cubes_are_uniform_and_as_large_as_they_can_be():
+    """Per block and octant, the cube of r blocks ahead holds one class, and the cube of
+    r + 1 does not (unless r is at its cap): on a map of 8³ blocks of random classes."""
+    rng = np.random.default_rng(7)
+    blocks = rng.choice([0, 1, 3], p=[0.6, 0.35, 0.05], size=(9, 7, 6))  # 3: mixed
+    blocks[2:7, 1:6, :] = 0  # a large uniform region
+    states = np.repeat(np.repeat(np.repeat(blocks, 8, 0), 8, 1), 8, 2).astype(np.uint8)
+    states = np.where(states == 0, 0, 1).astype(np.uint8)  # unknown (COUNT) or free (PASS)
+    mixed = np.argwhere(blocks == 3)
+    for i, j, k in mixed:
+        states[8 * i, 8 * j, 8 * k] = 2  # an occupied voxel makes the block mixed
+    skip = SkipMap.build(states, ORIGIN, VOXEL)
+    codes = skip.codes.reshape(blocks.shape)
+    assert np.array_equal(codes == MIXED, blocks == 3)
+    for octant in range(8):
+        s = np.array([(octant >> 2) & 1, (octant >> 1) & 1, octant & 1]) * 2 - 1
+        radii = skip.radii[octant].reshape(blocks.shape)
+        for b in np.ndindex(blocks.shape):
+            r = int(radii[b])
+            if codes[b] == MIXED:
+                assert r == -1
+                continue
+
+            def cube(n, b=b, s=s):
+                lo = np.minimum(np.array(b), np.array(b) + s * n).clip(0)
+                hi = np.maximum(np.array(b), np.array(b) + s * n) + 1
+                return codes[lo[0] : hi[0], lo[1] : hi[1], lo[2] : hi[2]]
+
+            assert np.all(cube(r) == codes[b])
+            if r < MAX_RADIUS and cube(r + 1).size > cube(r).size:
+                assert not np.all(cube(r + 1) == codes[b])
+    assert skip.radii.max() >= 2  # the uniform region gives cubes of more than one block
