@@ -4,7 +4,10 @@ shared here, as data: no service imports another."""
 
 from __future__ import annotations
 
+import xml.etree.ElementTree as ET
 from pathlib import Path
+
+import numpy as np
 
 ROBOTS_DIR = Path(__file__).resolve().parents[1] / "sim" / "robots"
 
@@ -15,3 +18,20 @@ def robot_mjcf(robot: str) -> Path:
         known = sorted(p.stem for p in ROBOTS_DIR.glob("*.xml"))
         raise FileNotFoundError(f"no robot model {robot!r} in {ROBOTS_DIR} (known: {known})")
     return path
+
+
+def camera_mount(mjcf: Path, camera: str) -> tuple[str, np.ndarray]:
+    """(parent body, T_body_optical) of a camera in an MJCF file: MuJoCo cameras look along
+    their −z with y up; the optical frame looks along +z with y down."""
+    for body in ET.parse(mjcf).getroot().iter("body"):
+        for cam in body.findall("camera"):
+            if cam.get("name") != camera:
+                continue
+            pos = np.array([float(v) for v in cam.get("pos", "0 0 0").split()])
+            xy = np.array([float(v) for v in cam.get("xyaxes", "1 0 0 0 1 0").split()])
+            x, y = xy[:3] / np.linalg.norm(xy[:3]), xy[3:] / np.linalg.norm(xy[3:])
+            T = np.eye(4)
+            T[:3, :3] = np.column_stack([x, -y, -np.cross(x, y)])
+            T[:3, 3] = pos
+            return body.get("name"), T
+    raise KeyError(f"{mjcf} has no camera {camera!r}")

@@ -42,6 +42,11 @@ class NbvSettings(ServiceSettings):
     samples: int = Field(200, ge=1, description="random sampling: views per step")
     every: int = Field(30, ge=1, description="hierarchical IG: every n-th ray for all views")
     best_k: int = Field(3, ge=0, description="hierarchical IG: every ray for the best k")
+    ig_measure: Literal["rays", "volume"] = Field(
+        "volume",
+        description="IG: rays (Eq. 4.6, a voxel counted once per ray through it) or volume "
+        "(each count weighted by the share of the voxel the ray's pixel covers)",
+    )
     max_range: float = Field(3.0, gt=0, description="sensor range of the predicted rays, m")
     map_min: list[float] | None = Field(
         None, description="box of the occupancy map fetched (default: all)"

@@ -185,18 +185,19 @@ def ray_gain(classes, codes, radii, shape, origin, grid_hi, voxel, o, u, max_ran
     """Unknown voxels of the roi (the box [lo, hi) in the world) on one ray from ``o`` along the
     unit ``u`` before its first occupied voxel, within ``max_range`` (map frame: ``origin`` at
     the grid's corner, ``grid_hi`` its far one). A ray that misses the roi costs nothing, one
-    that leaves it stops. 3D DDA (Amanatides & Woo) that crosses the uniform cube ahead (a
-    SkipMap radius, of the ray's octant) in one step: the voxels a DDA visits in it are 1 +
-    the boundary crossings before it leaves."""
+    that leaves it stops. Returns (that count, ∫ t³ over the ray's stretches through them,
+    i.e. Σ of t³ at leaving minus t³ at entering: the volume measure's). 3D DDA (Amanatides &
+    Woo) that crosses the uniform cube ahead (a SkipMap radius, of the ray's octant) in one
+    step: the voxels a DDA visits in it are 1 + the boundary crossings before it leaves."""
     nx, ny, nz = shape[0], shape[1], shape[2]
     gby, gbz = (ny + 7) >> 3, (nz + 7) >> 3
     r0, r1 = _clip(o, u, lo, hi, 0.0, max_range)
     if r0 >= r1:
-        return 0
+        return 0, 0.0
     # clip the segment [0, min(max_range, leaving the roi)] to the grid's box
     t0, t1 = _clip(o, u, origin, grid_hi, 0.0, r1)
     if t0 >= t1:
-        return 0
+        return 0, 0.0
     px = o[0] - origin[0] + u[0] * (t0 + 1e-9)
     py = o[1] - origin[1] + u[1] * (t0 + 1e-9)
     pz = o[2] - origin[2] + u[2] * (t0 + 1e-9)
@@ -210,48 +211,45 @@ def ray_gain(classes, codes, radii, shape, origin, grid_hi, voxel, o, u, max_ran
     limit = t1 - t0
     itx, ity, itz = 1.0 / tdx, 1.0 / tdy, 1.0 / tdz
     octant = (sx > 0) * 4 + (sy > 0) * 2 + (sz > 0)
-    count = 0
+    count, volume = 0, 0.0
     t = 0.0
     block = -1
     while t <= limit:
         bx, by, bz = ix >> 3, iy >> 3, iz >> 3
         here = (bx * gby + by) * gbz + bz
-        if here != block:  # entered a block: cross its uniform cube in one step
+        s = PASS  # the class of the voxel entered at t when it is stepped through alone
+        if here != block and codes[here] != MIXED:  # a uniform block: cross its cube at once
             block = here
-            code = codes[here]
-            if code != MIXED:
-                r = np.int64(radii[octant, here])
-                nxl = _steps_left(ix, sx, nx, bx - r, bx + r)
-                nyl = _steps_left(iy, sy, ny, by - r, by + r)
-                nzl = _steps_left(iz, sz, nz, bz - r, bz + r)
-                leave = min(tmx + nxl * tdx, tmy + nyl * tdy, tmz + nzl * tdz)
-                if leave > limit:  # the ray ends in the cube
-                    if code == COUNT:
-                        count += 1 + _crossings(tmx, itx, limit, nxl)
-                        count += _crossings(tmy, ity, limit, nyl)
-                        count += _crossings(tmz, itz, limit, nzl)
-                    return count
-                kx = _crossings(tmx, itx, leave, nxl)
-                ky = _crossings(tmy, ity, leave, nyl)
-                kz = _crossings(tmz, itz, leave, nzl)
-                if code == COUNT:
-                    count += 1 + kx + ky + kz
-                ix += sx * kx
-                iy += sy * ky
-                iz += sz * kz
-                tmx += tdx * kx
-                tmy += tdy * ky
-                tmz += tdz * kz
-            else:
-                s = classes[(here << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7)]
-                if s == STOP:
-                    break
-                count += s  # COUNT is 1, PASS 0
+            r = np.int64(radii[octant, here])
+            nxl = _steps_left(ix, sx, nx, bx - r, bx + r)
+            nyl = _steps_left(iy, sy, ny, by - r, by + r)
+            nzl = _steps_left(iz, sz, nz, bz - r, bz + r)
+            leave = min(tmx + nxl * tdx, tmy + nyl * tdy, tmz + nzl * tdz)
+            if leave > limit:  # the ray ends in the cube
+                if codes[here] == COUNT:
+                    count += 1 + _crossings(tmx, itx, limit, nxl)
+                    count += _crossings(tmy, ity, limit, nyl) + _crossings(tmz, itz, limit, nzl)
+                    volume += (t0 + limit) ** 3 - (t0 + t) ** 3
+                return count, volume
+            kx = _crossings(tmx, itx, leave, nxl)
+            ky = _crossings(tmy, ity, leave, nyl)
+            kz = _crossings(tmz, itz, leave, nzl)
+            if codes[here] == COUNT:
+                count += 1 + kx + ky + kz
+                volume += (t0 + leave) ** 3 - (t0 + t) ** 3
+            ix += sx * kx
+            iy += sy * ky
+            iz += sz * kz
+            tmx += tdx * kx
+            tmy += tdy * ky
+            tmz += tdz * kz
         else:
+            block = here
             s = classes[(here << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7)]
             if s == STOP:
                 break
-            count += s
+            count += s  # COUNT is 1, PASS 0
+        enter = t
         # the step to the nearest boundary, branch-free (selects, not jumps: which axis comes
         # next follows no pattern a branch predictor could learn)
         cx = tmx <= tmy and tmx <= tmz
@@ -264,36 +262,45 @@ def ray_gain(classes, codes, radii, shape, origin, grid_hi, voxel, o, u, max_ran
         tmx = tmx + tdx if cx else tmx
         tmy = tmy + tdy if cy else tmy
         tmz = tmz + tdz if cz else tmz
+        if s == COUNT:
+            volume += (t0 + min(t, limit)) ** 3 - (t0 + enter) ** 3
         if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
             break
-    return count
+    return count, volume
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _gains(classes, codes, radii, shape, origin, voxel, poses, dirs, max_range, lo, hi, out):
-    """out[v] = Σ over the rays ``dirs`` (camera frame, unit) of view ``poses[v]``; the
-    (view, chunk of rays) pairs in parallel, so one view uses every core too."""
+def _gains(classes, codes, radii, shape, origin, voxel, poses, dirs, weights, max_range, lo, hi):
+    """Per view ``poses[v]``: Σ over the rays ``dirs`` (camera frame, unit) of their counts,
+    and of their ∫ t³ times the ray's weight; the (view, chunk of rays) pairs in parallel, so
+    one view uses every core too."""
     per = 256
     chunks = (dirs.shape[0] + per - 1) // per
-    partial = np.zeros(poses.shape[0] * chunks, np.int64)
+    counts = np.zeros(poses.shape[0] * chunks, np.int64)
+    volumes = np.zeros(poses.shape[0] * chunks)
     grid_hi = origin + shape * voxel
     for job in prange(poses.shape[0] * chunks):
         v, c = job // chunks, job % chunks
         R = poses[v, :3, :3]
         o = poses[v, :3, 3].copy()
-        total = 0
+        total, volume = 0, 0.0
         u = np.empty(3)
         for r in range(c * per, min(dirs.shape[0], (c + 1) * per)):
             d = dirs[r]
             u[0] = R[0, 0] * d[0] + R[0, 1] * d[1] + R[0, 2] * d[2]
             u[1] = R[1, 0] * d[0] + R[1, 1] * d[1] + R[1, 2] * d[2]
             u[2] = R[2, 0] * d[0] + R[2, 1] * d[1] + R[2, 2] * d[2]
-            total += ray_gain(
+            n, m3 = ray_gain(
                 classes, codes, radii, shape, origin, grid_hi, voxel, o, u, max_range, lo, hi
             )
-        partial[job] = total
+            total += n
+            volume += weights[r] * m3
+        counts[job], volumes[job] = total, volume
+    out, vol = np.zeros(poses.shape[0], np.int64), np.zeros(poses.shape[0])
     for v in range(poses.shape[0]):
-        out[v] = partial[v * chunks : (v + 1) * chunks].sum()
+        out[v] = counts[v * chunks : (v + 1) * chunks].sum()
+        vol[v] = volumes[v * chunks : (v + 1) * chunks].sum()
+    return out, vol
 
 
 def pixel_rays(width: int, height: int, fx: float, fy: float, cx: float, cy: float, every: int = 1):
@@ -302,6 +309,12 @@ def pixel_rays(width: int, height: int, fx: float, fy: float, cx: float, cy: flo
     v, u = np.divmod(np.arange(0, width * height, every), width)
     d = np.column_stack([(u - cx) / fx, (v - cy) / fy, np.ones(len(u))])
     return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def solid_angles(rays: np.ndarray, fx: float, fy: float, every: int = 1) -> np.ndarray:
+    """The solid angle each ray stands for: ``every`` pixels of 1 / (fx·fy) on the image plane,
+    cos³ of the ray's angle to the optical axis (z) each."""
+    return every * np.asarray(rays)[:, 2] ** 3 / (fx * fy)
 
 
 def information_gain(
@@ -313,21 +326,30 @@ def information_gain(
     max_range: float = 3.0,
     box: tuple[np.ndarray, np.ndarray] | None = None,
     skip: SkipMap | None = None,
+    solid_angle: np.ndarray | None = None,
 ) -> np.ndarray:
     """IG(v) (Eq. 4.6) of each view ``poses[v]`` (T_world_camera) for the camera ``rays``,
     counting the unknown voxels inside ``box`` (default: the whole map), e.g. the scene's roi.
+
+    With ``solid_angle`` (per ray, see ``solid_angles``), the volume measure instead: each ray
+    stands for the cone of its solid angle Ω, whose unknown volume along the ray's unknown
+    stretches [a, b] is Ω·(b³ − a³)/3; their sum over voxel³ estimates how many unknown voxels
+    the view would see, each once (Eq. 4.6 counts a voxel once per ray through it: near
+    voxels many times over), on one scale whatever rays are cast.
     ``skip``: the map's SkipMap for that box, when the caller has it (then ``states``,
     ``origin``, ``voxel`` and ``box`` are not read)."""
     if skip is None:
         skip = SkipMap.build(states, origin, voxel, box)
     poses = np.ascontiguousarray(np.asarray(poses, np.float64).reshape(-1, 4, 4))
-    out = np.zeros(len(poses), np.int64)
-    if len(poses):
-        _gains(
-            skip.classes, skip.codes, skip.radii, skip.shape, skip.origin, skip.voxel, poses,
-            np.ascontiguousarray(rays, np.float64), float(max_range), skip.lo, skip.hi, out,
-        )  # fmt: skip
-    return out
+    if not len(poses):
+        return np.zeros(0, np.int64 if solid_angle is None else np.float64)
+    rays = np.ascontiguousarray(rays, np.float64)
+    weights = np.zeros(len(rays)) if solid_angle is None else np.asarray(solid_angle, float)
+    counts, volume = _gains(
+        skip.classes, skip.codes, skip.radii, skip.shape, skip.origin, skip.voxel, poses,
+        rays, weights / (3 * skip.voxel**3), float(max_range), skip.lo, skip.hi,
+    )  # fmt: skip
+    return counts if solid_angle is None else volume
 
 
 def hierarchical(
@@ -340,21 +362,29 @@ def hierarchical(
     every: int = 30,
     best_k: int = 3,
     box: tuple[np.ndarray, np.ndarray] | None = None,
+    measure: str = "rays",
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(IG of every view, the indices of the best k, whose IG is then from every ray). The
-    coarse IG is scaled by ``every`` so that both are on one scale."""
+    """(IG of every view, the indices of the best k, whose IG is then from every ray).
+    ``measure``: "rays" (Eq. 4.6: the coarse IG scaled by ``every`` so that both are on one
+    scale) or "volume" (see ``information_gain``)."""
+    if measure not in ("rays", "volume"):
+        raise ValueError(f"unknown IG measure {measure!r}: rays or volume")
     skip = SkipMap.build(states, origin, voxel, box)
-    coarse = information_gain(
-        None, origin, voxel, poses, pixel_rays(*intrinsics, every), max_range, skip=skip
-    )
-    gains = coarse.astype(np.float64) * every
+    fx, fy = intrinsics[2], intrinsics[3]
+
+    def gain(views: np.ndarray, n: int) -> np.ndarray:
+        rays = pixel_rays(*intrinsics, n)
+        omega = solid_angles(rays, fx, fy, n) if measure == "volume" else None
+        g = information_gain(
+            None, origin, voxel, views, rays, max_range, skip=skip, solid_angle=omega
+        )
+        return g.astype(np.float64) * (n if measure == "rays" else 1)
+
+    gains = gain(poses, every)
     if best_k <= 0 or not len(poses):
         return gains, np.zeros(0, int)
-    best = np.argsort(-coarse, kind="stable")[: min(best_k, len(poses))]
-    fine = information_gain(
-        None, origin, voxel, poses[best], pixel_rays(*intrinsics, 1), max_range, skip=skip
-    )
-    gains[best] = fine
+    best = np.argsort(-gains, kind="stable")[: min(best_k, len(poses))]
+    gains[best] = gain(poses[best], 1)
     return gains, best
 
 
@@ -395,4 +425,5 @@ __all__ = [
     "information_gain",
     "pixel_rays",
     "ray_gain",
+    "solid_angles",
 ]

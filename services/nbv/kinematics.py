@@ -6,35 +6,19 @@ axis through the sphere's centre, within the joint limits. pinocchio on the robo
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
+from services.common.robots import camera_mount
+
 #: the joints the view is reached with, per robot: (height, pan, tilt)
 HEAD_JOINTS = {
     "armar6": ("torso_lift", "neck_yaw", "neck_pitch"),
     "armar3": ("hip_yaw", "neck_yaw", "neck_upper_pitch"),
 }
-
-
-def camera_mount(mjcf: Path, camera: str) -> tuple[str, np.ndarray]:
-    """(parent body, T_body_optical) of a camera in an MJCF file: MuJoCo cameras look along
-    their −z with y up; the optical frame looks along +z with y down."""
-    for body in ET.parse(mjcf).getroot().iter("body"):
-        for cam in body.findall("camera"):
-            if cam.get("name") != camera:
-                continue
-            pos = np.array([float(v) for v in cam.get("pos", "0 0 0").split()])
-            xy = np.array([float(v) for v in cam.get("xyaxes", "1 0 0 0 1 0").split()])
-            x, y = xy[:3] / np.linalg.norm(xy[:3]), xy[3:] / np.linalg.norm(xy[3:])
-            T = np.eye(4)
-            T[:3, :3] = np.column_stack([x, -y, -np.cross(x, y)])
-            T[:3, 3] = pos
-            return body.get("name"), T
-    raise KeyError(f"{mjcf} has no camera {camera!r}")
 
 
 @dataclass

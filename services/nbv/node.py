@@ -46,6 +46,7 @@ class NbvNode:
                 samples=settings.samples,
                 every=settings.every,
                 best_k=settings.best_k,
+                ig_measure=settings.ig_measure,
                 max_range=settings.max_range,
                 seed=settings.seed,
                 roi=(np.array(settings.roi_min), np.array(settings.roi_max))

@@ -42,6 +42,7 @@ class PlannerConfig:
     topdown_theta: float = math.radians(62)
     every: int = 30  # hierarchical IG: every 30th ray, ...
     best_k: int = 3  # ... then every ray for the best k
+    ig_measure: str = "volume"  # or "rays" (Eq. 4.6 as printed): see information_gain
     max_range: float = 3.0
     intrinsics: tuple[int, int, float, float, float, float] = (
         640, 480, 583.06, 579.41, 319.5, 239.5,
@@ -194,7 +195,7 @@ class Planner:
         t1 = time.perf_counter()
         gain, _ = ig.hierarchical(
             states, origin, voxel, cands.poses, c.intrinsics, c.max_range, c.every, c.best_k,
-            c.roi,
+            c.roi, c.ig_measure,
         )  # fmt: skip
         times["information_gain_ms"] = (time.perf_counter() - t1) * 1e3
         t2 = time.perf_counter()

@@ -1,0 +1,113 @@
+"""Forward kinematics of the head's cameras and the fixation Jacobian (thesis 5.2): the gaze
+task as the control of a virtual end-effector on the gaze line (Omrčen & Ude 2010), the point
+at the fixation distance along a camera's optical axis. pinocchio on the robot's MJCF."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from services.common.robots import camera_mount
+
+#: the joints the gaze controller commands, per robot (neck first, then the eyes)
+HEAD_JOINTS = {
+    "armar3": (
+        "neck_lower_pitch", "neck_roll", "neck_yaw", "neck_upper_pitch",
+        "eye_tilt", "eye_pan_left", "eye_pan_right",
+    ),
+    "armar6": ("neck_yaw", "neck_pitch"),
+}  # fmt: skip
+EYE_JOINTS = frozenset({"eye_tilt", "eye_pan_left", "eye_pan_right"})
+BASE_JOINT = "Composite_base_x"  # x, y, yaw of the platform: pinocchio's name for the three
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+class GazeKinematics:
+    """The robot's kinematic tree (platform x, y, yaw + every joint); ``update`` with the
+    measured configuration, then poses and Jacobians (world-aligned) of the cameras, the IMU
+    and virtual end-effectors."""
+
+    def __init__(self, mjcf: Path, cameras: Sequence[str], imu: str = "imu") -> None:
+        self.model = pin.buildModelFromMJCF(str(mjcf))
+        self.data = self.model.createData()
+        m = self.model
+        self.joint_names = [m.names[i] for i in range(1, m.njoints) if m.names[i] != BASE_JOINT]
+        self.idx_q = {n: m.joints[m.getJointId(n)].idx_q for n in self.joint_names}
+        self.idx_v = {n: m.joints[m.getJointId(n)].idx_v for n in self.joint_names}
+        base = m.joints[m.getJointId(BASE_JOINT)]
+        self.base_q, self.base_v = base.idx_q, base.idx_v
+        self.lower = {n: float(m.lowerPositionLimit[self.idx_q[n]]) for n in self.joint_names}
+        self.upper = {n: float(m.upperPositionLimit[self.idx_q[n]]) for n in self.joint_names}
+        self.cameras = {}
+        for c in cameras:
+            body, T = camera_mount(mjcf, c)
+            self.cameras[c] = (m.getFrameId(body), T)
+        self.imu = m.getFrameId(imu)
+        self.q = pin.neutral(m)
+
+    def configuration(self, base: Sequence[float], joints: Mapping[str, float]) -> np.ndarray:
+        """q from the platform pose (x, y, yaw) and named joint positions (others neutral)."""
+        q = pin.neutral(self.model)
+        q[self.base_q : self.base_q + 3] = base
+        for n, v in joints.items():
+            if n in self.idx_q:
+                q[self.idx_q[n]] = v
+        return q
+
+    def velocity(self, base_twist: Sequence[float], joints: Mapping[str, float]) -> np.ndarray:
+        """v from the platform's world velocity (vx, vy, yaw rate) and named joint velocities."""
+        v = np.zeros(self.model.nv)
+        v[self.base_v : self.base_v + 3] = base_twist
+        for n, w in joints.items():
+            if n in self.idx_v:
+                v[self.idx_v[n]] = w
+        return v
+
+    def update(self, q: np.ndarray) -> None:
+        self.q = np.asarray(q, float)
+        pin.computeJointJacobians(self.model, self.data, self.q)
+        pin.updateFramePlacements(self.model, self.data)
+
+    def camera_pose(self, camera: str) -> np.ndarray:
+        """T_world_optical (x right, y down, z forward) of a camera."""
+        frame, T = self.cameras[camera]
+        return self.data.oMf[frame].homogeneous @ T
+
+    def point_jacobian(self, frame: int, point: np.ndarray) -> np.ndarray:
+        """3 × nv: the world velocity of a point (world coordinates) fixed to the frame's body."""
+        J = pin.getFrameJacobian(self.model, self.data, frame, pin.LOCAL_WORLD_ALIGNED)
+        lever = np.asarray(point) - self.data.oMf[frame].translation
+        return J[:3] - skew(lever) @ J[3:]
+
+    def fixation(self, camera: str, x_des: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """(error x_des − x_vee, its Jacobian J_vee (3 × nv), the gaze angle error in rad) of the
+        virtual end-effector x_vee = p + d·z: the point at the target's distance d along the
+        camera's optical axis z (5.2). ẋ_vee = J_vee·v with d held. (Only the two components
+        across the optical axis are a gaze error: see ``lateral``.)"""
+        T = self.camera_pose(camera)
+        p, z = T[:3, 3], T[:3, 2]
+        to = np.asarray(x_des, float) - p
+        d = float(np.linalg.norm(to))
+        x_vee = p + d * z
+        angle = float(np.arctan2(np.linalg.norm(np.cross(z, to)), z @ to))
+        return to - d * z, self.point_jacobian(self.cameras[camera][0], x_vee), angle
+
+    def imu_rotation(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(R_world_imu, the IMU's position, J_ω: 3 × nv world angular velocity of its body)."""
+        J = pin.getFrameJacobian(self.model, self.data, self.imu, pin.LOCAL_WORLD_ALIGNED)
+        M = self.data.oMf[self.imu]
+        return M.rotation.copy(), M.translation.copy(), J[3:]
+
+    def lateral(self, camera: str, x_des: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """``fixation`` along the camera's x and y axes only (2 and 2 × nv): along the optical
+        axis the virtual end-effector has nothing to hold, and asking it to would spend joint
+        motion (the eyes') on the distance."""
+        e, J, angle = self.fixation(camera, x_des)
+        R = self.camera_pose(camera)[:3, :2].T
+        return R @ e, R @ J, angle

@@ -1,0 +1,133 @@
+"""The gaze stabiliser (thesis 5.2, 5.3; Habra et al. 2017): hold the fixation point x_des on
+the optical axis of the chosen cameras while the rest of the robot moves.
+
+Head and eye velocities q̇_h solve J_h·q̇_h = ẋ, the virtual end-effectors' wanted velocity:
+
+    ẋ = K·e                       feedback on the fixation error e = x_des − x_vee
+        − J_o·q̇_o                 feed-forward: the self-induced motion predicted from the
+                                   measured velocities of the other joints and the odometry
+        − ω_u × (x_vee − p_imu)    VOR: the head rotation the gyro measures and the forward
+                                   model did not predict (reafference: ω_u = ω_gyro − J_ω·v)
+        + k_okr·ω_s × (x_vee − p)  OKR: retinal slip (image motion of the target) left over
+
+by weighted damped least squares, q̇_h = W⁻¹J_hᵀ(J_h W⁻¹J_hᵀ + λ²I)⁻¹ẋ, with the eye joints'
+weight 8× the neck's (the neck moves first; the eyes only where they must, 5.2), the joints
+drawn to mid-range in the null space; joints at their speed or position limits are held there
+and the rest solve the task. Pure: arrays in, velocities out."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from services.gaze.kinematics import EYE_JOINTS, GazeKinematics
+
+
+@dataclass
+class StabiliserConfig:
+    joints: Sequence[str]  # the head and eye joints commanded
+    cameras: Sequence[str]  # whose optical axes hold the fixation point
+    gain: float = 20.0  # K, 1/s
+    damping: float = 0.02  # λ
+    eye_weight: float = 8.0  # W of the eye joints, the neck's being 1 (5.2)
+    vor_gain: float = 1.0
+    okr_gain: float = 0.5
+    feedforward: bool = True  # predict self-induced motion from joint velocities
+    odometry: bool = True  # … and from the platform's odometry
+    speed: Mapping[str, float] = field(default_factory=dict)  # rad/s per joint (default 2)
+    centring: float = 1.0  # 1/s, the null-space pull towards mid-range
+    limit_time: float = 0.05  # s: joints approach their range limits as if to stop in this
+
+
+@dataclass
+class GazeCommand:
+    velocity: dict[str, float]
+    error_rad: dict[str, float]  # gaze angle error per camera
+    unpredicted: np.ndarray  # ω_u, rad/s (world)
+
+
+class GazeStabiliser:
+    def __init__(self, kinematics: GazeKinematics, config: StabiliserConfig) -> None:
+        self.kin, self.c = kinematics, config
+        self.head = [kinematics.idx_v[n] for n in config.joints]
+        weight = np.array([config.eye_weight if n in EYE_JOINTS else 1.0 for n in config.joints])
+        self.w_inv = 1.0 / weight
+        self.vmax = np.array([config.speed.get(n, 2.0) for n in config.joints])
+        self.lower = np.array([kinematics.lower[n] for n in config.joints])
+        self.upper = np.array([kinematics.upper[n] for n in config.joints])
+
+    def command(
+        self,
+        x_des: np.ndarray,
+        base: Sequence[float],
+        base_twist: Sequence[float],
+        position: Mapping[str, float],
+        velocity: Mapping[str, float],
+        gyro: np.ndarray | None = None,
+        slip: Mapping[str, np.ndarray] | None = None,
+    ) -> GazeCommand:
+        """Head and eye velocities for one control period. ``base``: odometry (x, y, yaw),
+        ``base_twist`` its world velocity (vx, vy, yaw rate); ``position``/``velocity``: the
+        measured joints; ``gyro``: the head IMU's angular velocity (IMU frame), None without
+        one; ``slip``: per camera, the angular velocity (world) at which the target drifts
+        across its image, None without images."""
+        c, kin = self.c, self.kin
+        q = kin.configuration(base, position)
+        kin.update(q)
+        v = kin.velocity(base_twist if c.odometry else (0.0, 0.0, 0.0), velocity)
+        v_other = v.copy()
+        v_other[self.head] = 0.0
+        R_imu, p_imu, J_imu = kin.imu_rotation()
+        omega_u = np.zeros(3)
+        if gyro is not None:
+            omega_u = R_imu @ np.asarray(gyro, float) - J_imu @ v
+        rows, targets, errors = [], [], {}
+        for cam in c.cameras:
+            e, J, angle = kin.fixation(cam, x_des)
+            errors[cam] = angle
+            x_vee = np.asarray(x_des, float) - e
+            across = kin.camera_pose(cam)[:3, :2].T  # the camera's x and y: see lateral()
+            xd = c.gain * e
+            if c.feedforward:
+                xd = xd - J @ v_other
+            xd = xd - c.vor_gain * np.cross(omega_u, x_vee - p_imu)
+            if slip is not None and cam in slip:
+                p = kin.camera_pose(cam)[:3, 3]
+                xd = xd + c.okr_gain * np.cross(np.asarray(slip[cam], float), x_vee - p)
+            rows.append(across @ J[:, self.head])
+            targets.append(across @ xd)
+        qh = np.array([position.get(n, 0.0) for n in c.joints])
+        qd = self.solve(np.vstack(rows), np.concatenate(targets), qh)
+        return GazeCommand(dict(zip(c.joints, qd.tolist(), strict=True)), errors, omega_u)
+
+    def solve(self, J: np.ndarray, xd: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """q̇ = J#·ẋ + (I − J#·J)·q̇₀ with the weighted damped pseudo-inverse J# and q̇₀ pulling
+        the joints towards the middle of their range in the task's null space; a joint that
+        would pass its speed limit or approach its range faster than limit_time allows is held at that bound
+        and the task solved again with the others (saturation in the null space)."""
+        c = self.c
+        # towards a limit no faster than reaching it in limit_time (an exponential approach),
+        # away from one (or back from past it) at up to the speed limit
+        lo = np.clip((self.lower - q) / c.limit_time, -self.vmax, self.vmax)
+        hi = np.clip((self.upper - q) / c.limit_time, -self.vmax, self.vmax)
+        centre = -c.centring * (q - (self.lower + self.upper) / 2)
+        free = np.ones(len(q), bool)
+        qd = np.zeros(len(q))
+        for _ in range(len(q)):
+            rest = xd - J[:, ~free] @ qd[~free]
+            Jf, w_inv = J[:, free], self.w_inv[free]
+            JW = Jf * w_inv  # J W⁻¹
+            pinv = JW.T @ np.linalg.inv(JW @ Jf.T + c.damping**2 * np.eye(len(xd)))
+            qf = pinv @ rest + (np.eye(len(w_inv)) - pinv @ Jf) @ centre[free]
+            qd[free] = qf
+            over = np.maximum(qd - hi, lo - qd) * free
+            if over.max() <= 1e-12:
+                break
+            worst = int(np.argmax(over))
+            qd[worst] = np.clip(qd[worst], lo[worst], hi[worst])
+            free[worst] = False
+            if not free.any():
+                break
+        return np.clip(qd, lo, hi)
