@@ -111,3 +111,20 @@ class GazeKinematics:
         e, J, angle = self.fixation(camera, x_des)
         R = self.camera_pose(camera)[:3, :2].T
         return R @ e, R @ J, angle
+
+    def reachable_directions(
+        self, camera: str, joints: Sequence[str], samples: int = 20_000, seed: int = 0
+    ) -> np.ndarray:
+        """Optical-axis directions of ``camera`` in the platform frame (platform at the origin)
+        over uniform random samples of the joints' ranges: where the head can look (5.1
+        prunes the ego-sphere to these)."""
+        rng = np.random.default_rng(seed)
+        lo = np.array([self.lower[n] for n in joints])
+        hi = np.array([self.upper[n] for n in joints])
+        frame, T = self.cameras[camera]
+        out = np.empty((samples, 3))
+        for i, q_j in enumerate(rng.uniform(lo, hi, (samples, len(joints)))):
+            q = self.configuration((0.0, 0.0, 0.0), dict(zip(joints, q_j, strict=True)))
+            pin.framesForwardKinematics(self.model, self.data, q)
+            out[i] = self.data.oMf[frame].rotation @ T[:3, 2]
+        return out

@@ -105,8 +105,9 @@ class GazeStabiliser:
     def solve(self, J: np.ndarray, xd: np.ndarray, q: np.ndarray) -> np.ndarray:
         """q̇ = J#·ẋ + (I − J#·J)·q̇₀ with the weighted damped pseudo-inverse J# and q̇₀ pulling
         the joints towards the middle of their range in the task's null space; a joint that
-        would pass its speed limit or approach its range faster than limit_time allows is held at that bound
-        and the task solved again with the others (saturation in the null space)."""
+        would pass its speed limit, or near its range's end faster than ``limit_time`` allows,
+        is held at that bound and the task solved again with the others (saturation in the
+        null space)."""
         c = self.c
         # towards a limit no faster than reaching it in limit_time (an exponential approach),
         # away from one (or back from past it) at up to the speed limit

@@ -1,0 +1,95 @@
+"""Saliency sources of the ego-sphere (thesis 5.1.1): the uncertainty of object localisation
+(Welke et al. 2013) and single-coloured blobs in the peripheral image (5.4.2).
+
+An object's position belief is a Kalman filter (constant position, process noise growing the
+covariance while it is not looked at); its saliency is the differential entropy of the belief
+above what the task needs: σ = det(Σ)^(1/6) (Eq. 5.2), u = ½·ln((2πe·σ²)³) (Eq. 5.3), the
+task acuity b = ½·ln((2πe·α²)³) (Eq. 5.4), s = max(0, u − b)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import ndimage
+
+TWO_PI_E = 2.0 * np.pi * np.e
+
+
+def entropy(sigma: float) -> float:
+    """½·ln((2πe·σ²)³): Eq. 5.3 (of a belief) and 5.4 (of the task acuity α)."""
+    return 0.5 * np.log(TWO_PI_E**3 * sigma**6)
+
+
+@dataclass
+class ObjectBelief:
+    """Kalman filter on an object's position (world, m)."""
+
+    mean: np.ndarray
+    covariance: np.ndarray
+    acuity: float = 0.01  # α: the localisation accuracy the task needs (m)
+    process_noise: float = 1e-4  # m²/s added to each variance while time passes
+    stamp: float = 0.0
+    observations: int = field(default=0)
+
+    @classmethod
+    def first(cls, position, covariance, stamp: float, acuity: float = 0.01) -> ObjectBelief:
+        return cls(
+            np.asarray(position, float), np.asarray(covariance, float), acuity, stamp=stamp,
+            observations=1,
+        )  # fmt: skip
+
+    def predict(self, stamp: float) -> None:
+        dt = max(0.0, stamp - self.stamp)
+        self.covariance = self.covariance + self.process_noise * dt * np.eye(3)
+        self.stamp = max(self.stamp, stamp)
+
+    def update(self, position, covariance, stamp: float) -> None:
+        """Fuse one localisation result (its position and covariance)."""
+        self.predict(stamp)
+        S = self.covariance + np.asarray(covariance, float)
+        K = self.covariance @ np.linalg.inv(S)
+        self.mean = self.mean + K @ (np.asarray(position, float) - self.mean)
+        self.covariance = (np.eye(3) - K) @ self.covariance
+        self.covariance = (self.covariance + self.covariance.T) / 2
+        self.observations += 1
+
+    @property
+    def sigma(self) -> float:
+        """σ = det(Σ)^(1/6) (Eq. 5.2)."""
+        return float(np.linalg.det(self.covariance) ** (1.0 / 6.0))
+
+    @property
+    def saliency(self) -> float:
+        """s = max(0, u − b) (Eq. 5.3, 5.4)."""
+        return max(0.0, entropy(self.sigma) - entropy(self.acuity))
+
+
+def colour_blobs(
+    rgb: np.ndarray,
+    min_saturation: float = 0.5,
+    min_value: float = 0.25,
+    min_pixels: int = 50,
+) -> list[tuple[float, float, int]]:
+    """Single-coloured blobs: connected regions of saturated pixels (HSV saturation and value
+    above the thresholds) of one hue (12 bins), as (u, v, pixels) of their centres."""
+    x = rgb.astype(np.float32) / 255.0
+    mx, mn = x.max(-1), x.min(-1)
+    sat = np.where(mx > 0, (mx - mn) / np.maximum(mx, 1e-6), 0.0)
+    mask = (sat >= min_saturation) & (mx >= min_value)
+    if not mask.any():
+        return []
+    r, g, b = x[..., 0], x[..., 1], x[..., 2]
+    hue = np.degrees(np.arctan2(np.sqrt(3.0) * (g - b), 2 * r - g - b)) % 360
+    bins = (hue // 30).astype(np.int32)
+    blobs = []
+    for h in np.unique(bins[mask]):
+        labels, n = ndimage.label(mask & (bins == h))
+        if not n:
+            continue
+        sizes = ndimage.sum_labels(np.ones_like(labels), labels, np.arange(1, n + 1))
+        centres = ndimage.center_of_mass(mask, labels, np.arange(1, n + 1))
+        for size, (v, u) in zip(sizes, centres, strict=True):
+            if size >= min_pixels:
+                blobs.append((float(u), float(v), int(size)))
+    return blobs

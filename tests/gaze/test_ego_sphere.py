@@ -1,0 +1,101 @@
+"""The ego-sphere (5.1) and its saliency sources (5.1.1): uniformity, expiry, pruning,
+winner-takes-all with inhibition of return, the Kalman belief's saliency, colour blobs."""
+
+from __future__ import annotations
+
+from itertools import pairwise
+
+import numpy as np
+import pytest
+
+from services.common.robots import robot_mjcf
+from services.gaze.ego_sphere import EgoSphere
+from services.gaze.kinematics import GazeKinematics
+from services.gaze.saliency import ObjectBelief, colour_blobs, entropy
+
+AHEAD, LEFT, BEHIND = np.array([1.0, 0, -0.3]), np.array([0.3, 1.0, -0.2]), np.array([-1.0, 0, 0])
+
+
+@pytest.fixture(scope="module")
+def sphere() -> EgoSphere:
+    return EgoSphere()
+
+
+def test_40000_points_near_uniform(sphere):
+    assert len(sphere) == 40_000
+    assert np.allclose(np.linalg.norm(sphere.points, axis=1), 1.0)
+    nn = sphere.tree.query(sphere.points, k=2)[0][:, 1]
+    median = np.median(nn)
+    assert nn.min() > 0.9 * median and nn.max() < 1.1 * median, (nn.min(), nn.max(), median)
+    assert np.abs(sphere.points.mean(0)).max() < 1e-3  # no side favoured
+
+
+def test_eq_5_1_weighted_sources_and_expiry_after_5_s():
+    ego = EgoSphere(noise=0.0)
+    j = ego.tree.query(AHEAD / np.linalg.norm(AHEAD))[1]
+    ego.add("object", ego.points[j], 1.0, stamp=0.0, weight=3.0)
+    ego.add("blob", ego.points[j], 0.2, stamp=2.0, weight=1.0)
+    assert ego.saliency(4.0)[j] == pytest.approx((3 * 1.0 + 1 * 0.2) / 4, rel=1e-3)
+    assert ego.saliency(5.5)[j] == pytest.approx(0.2 / 4, rel=1e-3)  # the object's is > 5 s old
+    assert ego.saliency(7.5)[j] == 0.0
+
+
+def test_an_unreachable_point_is_never_chosen():
+    kin = GazeKinematics(robot_mjcf("armar3"), ["left_foveal"])
+    joints = ("neck_lower_pitch", "neck_yaw", "neck_upper_pitch", "eye_tilt", "eye_pan_left")
+    ego = EgoSphere()
+    ego.prune(kin.reachable_directions("left_foveal", joints, 5000), resolution_deg=4.0)
+    assert 0.3 < ego.reachable.mean() < 0.7  # armar3 looks about ±90° around, not behind
+    assert ego.reachable[ego.tree.query(AHEAD / np.linalg.norm(AHEAD))[1]]
+    assert not ego.reachable[ego.tree.query(BEHIND)[1]]
+    ego.add("manual", BEHIND, 10.0, stamp=0.0)
+    ego.add("object", AHEAD, 1.0, stamp=0.0)
+    winner = ego.select(1.0)
+    assert ego.points[winner] @ (AHEAD / np.linalg.norm(AHEAD)) > np.cos(np.radians(5))
+    ego.sources["object"].values[:] = 0  # only the unreachable one left: noise decides, inside
+    for t in np.linspace(1, 4, 10):
+        assert ego.reachable[ego.select(t)]
+
+
+def test_inhibition_of_return_moves_the_winner_on_and_wears_off():
+    ego = EgoSphere(noise=0.0, inhibition_deg=8.0, inhibition_s=3.0)
+    ego.add("object", AHEAD, 1.0, stamp=0.0)
+    ego.add("object", LEFT, 0.6, stamp=0.0)
+    first = ego.select(0.5)
+    assert ego.points[first] @ (AHEAD / np.linalg.norm(AHEAD)) > np.cos(np.radians(2))
+    ego.inhibit(first, 0.5)
+    second = ego.select(1.0)
+    assert ego.points[second] @ (LEFT / np.linalg.norm(LEFT)) > np.cos(np.radians(2))
+    assert ego.select(3.6) == first  # 3 s later the first may win again
+
+
+def test_kalman_fusion_shrinks_sigma_until_the_task_acuity_makes_saliency_zero():
+    rng = np.random.default_rng(0)
+    truth = np.array([1.5, 0.15, 0.86])
+    R = np.diag([0.03, 0.03, 0.05]) ** 2  # one localisation result's covariance
+    belief = ObjectBelief.first(truth + rng.normal(0, 0.03, 3), R, stamp=0.0, acuity=0.01)
+    sigmas, saliencies = [belief.sigma], [belief.saliency]
+    for k in range(1, 30):
+        belief.update(truth + rng.multivariate_normal(np.zeros(3), R), R, stamp=0.05 * k)
+        sigmas.append(belief.sigma)
+        saliencies.append(belief.saliency)
+    assert all(b < a for a, b in pairwise(sigmas))
+    assert saliencies[0] == pytest.approx(entropy(sigmas[0]) - entropy(0.01))  # Eq. 5.2-5.4
+    assert saliencies[0] > 2.0
+    below = [s for s, sig in zip(saliencies, sigmas, strict=True) if sig < 0.01]
+    assert below and all(s == 0.0 for s in below)
+    assert np.linalg.norm(belief.mean - truth) < 0.02
+    belief.predict(belief.stamp + 600.0)  # not looked at for ten minutes: salient again
+    assert belief.saliency > 0
+
+
+def test_a_green_cup_is_one_colour_blob_at_its_centre():
+    img = np.full((240, 320, 3), 128, np.uint8)
+    v, u = np.mgrid[:240, :320]
+    img[(u - 200.0) ** 2 + (v - 80.0) ** 2 < 20**2] = (25, 180, 40)
+    img[100:140, 20:60] = (200, 30, 30)
+    blobs = sorted(colour_blobs(img), key=lambda b: -b[0])  # the cup on the right
+    assert len(blobs) == 2
+    (u0, v0, n0), (u1, v1, _) = blobs
+    assert abs(u0 - 200) < 0.5 and abs(v0 - 80) < 0.5 and 1200 < n0 < 1300
+    assert abs(u1 - 39.5) < 0.5 and abs(v1 - 119.5) < 0.5
