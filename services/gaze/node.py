@@ -1,0 +1,255 @@
+"""The gaze node: the real-time service of the system (thesis 5.3, Fig. 5.6).
+
+Every IMU sample (``sensors/imu``, up to 1 kHz) runs one control step of the stabiliser with
+the latest ``state/joints`` and ``state/base`` and publishes ``cmd/head`` (joint velocities,
+``trigger_stamp`` = the IMU sample's stamp, for latency tracing). The fixation point is the
+freshest ``gaze/target`` of the highest priority (next-best-view or a person: manual targets
+win while fresh), else the ego-sphere's winner, chosen every ``select_every`` seconds from
+object-localisation uncertainty (``perception/observation``, Kalman-fused) and whatever
+``gaze/target`` sources put on it. An input older than ``stale_ms`` stops the control: the
+head is held still (one zero command) and the node says so, instead of extrapolating."""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+
+import numpy as np
+
+from schemas import (
+    BasePose,
+    EgoSphereSnapshot,
+    GazeTarget,
+    HeadCommand,
+    ImuSample,
+    JointState,
+    SceneObservation,
+)
+from services.common.node import Node
+from services.common.robots import robot_mjcf
+from services.gaze.config import GazeSettings
+from services.gaze.ego_sphere import EgoSphere
+from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics
+from services.gaze.saliency import ObjectBelief
+from services.gaze.stabiliser import GazeStabiliser, StabiliserConfig
+
+log = logging.getLogger("avs.gaze")
+
+#: joint speed limits (rad/s) the controller keeps to, per robot (the sim's servos' limits)
+SPEED = {
+    "armar3": {"eye_tilt": 5.0, "eye_pan_left": 5.0, "eye_pan_right": 5.0},
+    "armar6": {},
+}
+
+
+def localisation_covariance(depth: float) -> np.ndarray:
+    """A primitive centre's covariance from the structured-light depth noise at its depth
+    (σ_z = 0.0012 + 0.0019·(z − 0.4)² m, SPEC §2) plus 5 mm of fitting error each way."""
+    sz = 0.0012 + 0.0019 * (depth - 0.4) ** 2 + 0.005
+    return np.diag([0.005**2, 0.005**2, sz**2])
+
+
+class GazeNode:
+    def __init__(self, node: Node, settings: GazeSettings) -> None:
+        self.node, self.s = node, settings
+        cameras = settings.fixating()
+        self.kin = GazeKinematics(robot_mjcf(settings.robot), cameras)
+        self.joints = HEAD_JOINTS[settings.robot]
+        self.stab = GazeStabiliser(
+            self.kin,
+            StabiliserConfig(
+                self.joints, cameras, gain=settings.gain, damping=settings.damping,
+                eye_weight=settings.eye_weight, vor_gain=settings.vor_gain,
+                okr_gain=settings.okr_gain, odometry=settings.odometry,
+                speed=SPEED.get(settings.robot, {}),
+            ),
+        )  # fmt: skip
+        self.ego = EgoSphere(settings.points, settings.expiry)
+        look = [n for n in self.joints if n not in ("neck_roll", "eye_pan_right")]
+        self.ego.prune(self.kin.reachable_directions(cameras[0], look, 5000), 4.0)
+        self.lock = threading.Lock()
+        self.joint_state: JointState | None = None
+        self.base: BasePose | None = None
+        self.received: dict[str, float] = {}  # wall time of the last sample per input
+        self.targets: dict[str, GazeTarget] = {}  # the freshest per source
+        self.targets_wall: dict[str, float] = {}
+        self.objects: list[ObjectBelief] = []
+        self.chosen: np.ndarray | None = None  # ego-sphere winner (world point)
+        self.chosen_at = -math.inf
+        self.holding: str = ""  # why the head is held, "" while controlling
+        self.commanding = False
+        self.seq = 0
+        self.steps = 0
+        k = node.keys
+        self.out_head = node.publisher(k.cmd_head())
+        self.out_ego = node.publisher(k.egosphere())
+        node.subscribe(k.joints(), JointState, self.on_joints)
+        node.subscribe(k.base_state(), BasePose, self.on_base)
+        node.subscribe(k.gaze_target(), GazeTarget, self.on_target)
+        node.subscribe(k.observation(), SceneObservation, self.on_observation, latest_only=True)
+        node.subscribe(k.imu(), ImuSample, self.on_imu)
+        node._start_thread(self.watchdog, "gaze:watchdog")
+        if settings.egosphere_rate > 0:
+            node._start_thread(self.publish_egosphere, "gaze:egosphere")
+
+    # -- inputs -------------------------------------------------------------------------------
+
+    def on_joints(self, msg: JointState) -> None:
+        self.joint_state = msg
+        self.received["state/joints"] = time.monotonic()
+
+    def on_base(self, msg: BasePose) -> None:
+        self.base = msg
+        self.received["state/base"] = time.monotonic()
+
+    def on_target(self, msg: GazeTarget) -> None:
+        with self.lock:
+            self.targets[msg.source] = msg
+            self.targets_wall[msg.source] = time.monotonic()
+
+    def on_observation(self, obs: SceneObservation) -> None:
+        """Fuse each small primitive's centre into the nearest object belief (within 10 cm),
+        or start one; each belief's saliency goes on the ego-sphere at its direction."""
+        cam = np.asarray(obs.T_world_camera)
+        with self.lock:
+            for p in obs.primitives:
+                if float(np.max(p.obb.extent)) > 0.4:  # tables, walls, floors: not objects
+                    continue
+                centre = np.asarray(p.obb.center, float)
+                depth = float(np.linalg.norm(centre - cam[:3, 3]))
+                R = localisation_covariance(depth)
+                near = [b for b in self.objects if np.linalg.norm(b.mean - centre) < 0.1]
+                if near:
+                    near[0].update(centre, R, obs.stamp)
+                else:
+                    self.objects.append(ObjectBelief.first(centre, R, obs.stamp, self.s.acuity))
+
+    def on_imu(self, imu: ImuSample) -> None:
+        """One control step per IMU sample."""
+        now = time.monotonic()
+        self.received["sensors/imu"] = now
+        js, base = self.joint_state, self.base
+        # inputs' ages on the sample clock (sim or wall time alike, lockstep included)
+        ages = {"state/joints": js, "state/base": base}
+        stale = [k for k, m in ages.items()
+                 if m is None or imu.stamp - m.stamp > self.s.stale_ms / 1e3]  # fmt: skip
+        if stale:
+            self.hold(f"no {' and '.join(stale)} for more than {self.s.stale_ms:.0f} ms")
+            return
+        target = self.target(imu.stamp, base)
+        if target is None:
+            self.hold("no fixation target")
+            return
+        names = js.names
+        cmd = self.stab.command(
+            target,
+            (base.x, base.y, base.yaw),
+            (base.v_x, base.v_y, base.v_yaw),
+            dict(zip(names, js.position.tolist(), strict=True)),
+            dict(zip(names, js.velocity.tolist(), strict=True)),
+            np.asarray(imu.angular_velocity, float),
+        )
+        self.out_head.put(
+            HeadCommand(
+                seq=self._seq(), stamp=imu.stamp, names=list(cmd.velocity), mode="velocity",
+                values=np.array(list(cmd.velocity.values())), source="gaze",
+                trigger_stamp=imu.stamp,
+            )
+        )  # fmt: skip
+        self.commanding = True
+        if self.holding:
+            log.info("controlling again", extra={"after": self.holding})
+            self.holding = ""
+            self.node.metrics.gauge("holding", 0)
+        self.steps += 1
+        m = self.node.metrics
+        m.gauge("fixation_error_deg", math.degrees(max(cmd.error_rad.values())))
+        m.gauge("unpredicted_rad_s", float(np.linalg.norm(cmd.unpredicted)))
+        m.gauge("control_steps", self.steps)
+
+    def _seq(self) -> int:
+        self.seq += 1
+        return self.seq
+
+    # -- targets ------------------------------------------------------------------------------
+
+    def target(self, stamp: float, base: BasePose) -> np.ndarray | None:
+        """The fresh gaze/target of the highest priority, else the ego-sphere's winner."""
+        now = time.monotonic()
+        with self.lock:
+            fresh = [t for src, t in self.targets.items()
+                     if now - self.targets_wall[src] <= t.hold_s]  # fmt: skip
+            if fresh:
+                best = max(fresh, key=lambda t: (t.priority, t.source == "manual", t.stamp))
+                return np.asarray(best.point, float)
+            if now - self.chosen_at >= self.s.select_every:
+                self.chosen = self.select(stamp, base)
+                self.chosen_at = now
+            return self.chosen
+
+    def select(self, stamp: float, base: BasePose) -> np.ndarray | None:
+        """Put the objects' saliencies on the ego-sphere, take the winner, inhibit it."""
+        head = self._head_position()
+        c, s = math.cos(base.yaw), math.sin(base.yaw)
+        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # world ← platform
+        for b in self.objects:
+            b.predict(stamp)
+            if b.saliency > 0:
+                to = b.mean - head
+                self.ego.add("object", R.T @ to, b.saliency, stamp,
+                             distance=float(np.linalg.norm(to)))  # fmt: skip
+        j = self.ego.select(stamp)
+        if j < 0 or not self.ego.sources:
+            return None
+        self.ego.inhibit(j, stamp)
+        return head + R @ self.ego.points[j] * self.ego.distance(j, stamp)
+
+    def _head_position(self) -> np.ndarray:
+        return self.kin.imu_rotation()[1]
+
+    # -- holding and snapshots ----------------------------------------------------------------
+
+    def hold(self, why: str) -> None:
+        """Stop controlling: one zero-velocity command if we were commanding, and say why."""
+        if self.commanding:
+            self.out_head.put(
+                HeadCommand(
+                    seq=self._seq(), stamp=time.time(), names=list(self.joints),
+                    mode="velocity", values=np.zeros(len(self.joints)), source="gaze",
+                )
+            )  # fmt: skip
+            self.commanding = False
+        if why != self.holding:
+            log.warning("holding the head still: %s", why)
+            self.holding = why
+            self.node.metrics.gauge("holding", 1)
+            self.node.metrics.drop("held:" + why.split(" for ")[0])
+
+    def watchdog(self) -> None:
+        """Without IMU samples nothing runs the control step: hold from here."""
+        while not self.node.stopping:
+            time.sleep(self.s.stale_ms / 2e3)
+            silent = time.monotonic() - self.received.get("sensors/imu", -math.inf)
+            if silent > self.s.stale_ms / 1e3 and (self.commanding or not self.holding):
+                self.hold(f"no sensors/imu for more than {self.s.stale_ms:.0f} ms")
+
+    def publish_egosphere(self) -> None:
+        period = 1.0 / self.s.egosphere_rate
+        while not self.node.stopping:
+            time.sleep(period)
+            stamp = self.base.stamp if self.base is not None else 0.0
+            with self.lock:
+                sal = self.ego.saliency(stamp)
+                winner = self.ego.select(stamp)
+            keep = np.arange(0, len(self.ego), self.s.egosphere_every)
+            self.out_ego.put(
+                EgoSphereSnapshot(
+                    seq=self._seq(), stamp=stamp, reachable=self.ego.reachable[keep],
+                    directions=self.ego.points[keep].astype(np.float32),
+                    saliency=sal[keep].astype(np.float32),
+                    winner=int(np.searchsorted(keep, winner)) if winner >= 0 else -1,
+                    sources=sorted(self.ego.sources), frame="platform",
+                )
+            )  # fmt: skip

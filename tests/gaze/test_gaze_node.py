@@ -1,0 +1,120 @@
+"""The gaze service as a process against the sim as a process (real time, ARMAR-III in the
+localization scene) over a loopback router: a manual gaze/target is held while the hip
+swings, commands carry the IMU stamp that caused them, and a silent IMU holds the head."""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from schemas import (
+    GazeTarget,
+    HeadCommand,
+    JointState,
+    Keys,
+    ServiceMetrics,
+    SimControl,
+    SimStatus,
+    decode,
+    encode,
+)
+from services.common.robots import robot_mjcf
+from services.gaze.kinematics import GazeKinematics
+from tests.conftest import avs_env, liveliness_tokens, wait_for
+
+KEYS = Keys("armar3")
+CUP = np.array([1.5, 0.15, 0.86])
+
+
+def control(client, **request) -> SimStatus:
+    (reply,) = client.get(KEYS.sim_control(), payload=encode(SimControl(**request)), timeout=30)
+    status = decode(reply.ok.payload.to_bytes(), SimStatus)
+    assert status.ok, status.error
+    return status
+
+
+def metrics(client) -> ServiceMetrics:
+    replies = [r.ok for r in client.get(KEYS.metrics("gaze", "gaze-test"), timeout=5) if r.ok]
+    return decode(replies[0].payload.to_bytes(), ServiceMetrics)
+
+
+@pytest.mark.timeout(180)
+def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_imu(
+    router, client, procs
+):
+    env = avs_env(router, MUJOCO_GL="egl", AVS_ROBOT="armar3")
+    procs.python(
+        ["-m", "services.sim", "--instance", "sim-test", "--scene", "localization", "--fps", "0"],
+        env=env,
+    )
+    gaze = procs.python(["-m", "services.gaze", "--instance", "gaze-test"], env=env)
+    wait_for(
+        lambda: (
+            {KEYS.alive("sim", "sim-test"), KEYS.alive("gaze", "gaze-test")}
+            <= liveliness_tokens(client, KEYS.alive())
+        ),
+        90,
+        "sim and gaze to come up",
+    )
+    lock = threading.Lock()
+    joints: list[JointState] = []
+    commands: list[HeadCommand] = []
+
+    def on(sample, kind, into):
+        with lock:
+            into.append(decode(sample.payload.to_bytes(), kind))
+
+    subs = [
+        client.declare_subscriber(KEYS.joints(), lambda s: on(s, JointState, joints)),
+        client.declare_subscriber(KEYS.cmd_head(), lambda s: on(s, HeadCommand, commands)),
+    ]
+    target = client.declare_publisher(KEYS.gaze_target())
+    seq = 0
+
+    def aim(seconds: float) -> None:
+        nonlocal seq
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            seq += 1
+            target.put(encode(GazeTarget(seq=seq, stamp=time.time(), point=CUP,
+                                         source="manual", priority=1.0, hold_s=2.0)))  # fmt: skip
+            time.sleep(0.25)
+
+    aim(3.0)  # fixate
+    control(client, op="set_disturbance", joint="hip_yaw", amplitude=20.0, frequency=0.25)
+    with lock:
+        joints.clear()
+    aim(6.0)  # the hip swings by ±12.7°
+    with lock:
+        window, cmds = list(joints), list(commands)
+    kin = GazeKinematics(robot_mjcf("armar3"), ["left_foveal"])
+    errors = []
+    for js in window:
+        kin.update(
+            kin.configuration((0.0, 0.0, 0.0), dict(zip(js.names, js.position, strict=True)))
+        )
+        errors.append(math.degrees(kin.fixation("left_foveal", CUP)[2]))
+    errors = np.array(errors)
+    hip = [float(js.position[js.names.index("hip_yaw")]) for js in window]
+    print(f"over {len(errors)} states: fixation error RMS {np.sqrt(np.mean(errors**2)):.3f}°, "
+          f"max {errors.max():.3f}°; hip swing {math.degrees(np.ptp(hip)):.1f}°")  # fmt: skip
+    assert len(window) > 500 and math.degrees(np.ptp(hip)) > 15
+    assert np.sqrt(np.mean(errors**2)) < 1.0 and errors.max() < 3.0
+    gaze_cmds = [c for c in cmds if c.source == "gaze" and c.mode == "velocity"]
+    assert len(gaze_cmds) > 3000  # about one per IMU sample
+    assert all(c.trigger_stamp is not None for c in gaze_cmds if np.any(c.values))
+    m = metrics(client)
+    assert m.extra["control_steps"] > 3000 and m.extra["holding"] == 0
+    # the sim pauses: no IMU, so the head is held (one zero command) and the node says so
+    control(client, op="pause")
+    wait_for(lambda: metrics(client).extra.get("holding") == 1, 5, "gaze to hold the head")
+    with lock:
+        last = commands[-1]
+    assert last.source == "gaze" and not np.any(last.values)
+    for s in subs:
+        s.undeclare()
+    assert gaze.poll() is None
