@@ -106,10 +106,10 @@ class EgoSphere:
         total += self.noise * self.rng.random(n)
         return np.where(self.reachable, total, 0.0)
 
-    def select(self, now: float) -> int:
+    def select(self, now: float, saliency: np.ndarray | None = None) -> int:
         """The winner: the reachable, not inhibited point of the largest saliency (−1 if every
-        point is unreachable or inhibited)."""
-        s = self.saliency(now)
+        point is unreachable or inhibited); ``saliency``: this instant's, if computed."""
+        s = (self.saliency(now) if saliency is None else saliency).copy()
         s[(self.inhibited_until > now) | ~self.reachable] = -np.inf
         j = int(np.argmax(s))
         return j if np.isfinite(s[j]) else -1

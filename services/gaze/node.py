@@ -242,7 +242,7 @@ class GazeNode:
             stamp = self.base.stamp if self.base is not None else 0.0
             with self.lock:
                 sal = self.ego.saliency(stamp)
-                winner = self.ego.select(stamp)
+                winner = self.ego.select(stamp, sal)
             keep = np.arange(0, len(self.ego), self.s.egosphere_every)
             self.out_ego.put(
                 EgoSphereSnapshot(

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from services.gaze.kinematics import EYE_JOINTS, GazeKinematics
+from services.gaze.kinematics import EYE_JOINTS, GazeKinematics, cross
 
 
 @dataclass
@@ -92,10 +92,10 @@ class GazeStabiliser:
             xd = c.gain * e
             if c.feedforward:
                 xd = xd - J @ v_other
-            xd = xd - c.vor_gain * np.cross(omega_u, x_vee - p_imu)
+            xd = xd - c.vor_gain * cross(omega_u, x_vee - p_imu)
             if slip is not None and cam in slip:
                 p = kin.camera_pose(cam)[:3, 3]
-                xd = xd + c.okr_gain * np.cross(np.asarray(slip[cam], float), x_vee - p)
+                xd = xd + c.okr_gain * cross(np.asarray(slip[cam], float), x_vee - p)
             rows.append(across @ J[:, self.head])
             targets.append(across @ xd)
         qh = np.array([position.get(n, 0.0) for n in c.joints])
