@@ -6,10 +6,21 @@ import argparse
 import sys
 from collections.abc import Sequence
 
-from avs.commands import echo, explore, fuse, perceive, record, run, schema, sim, up
+from avs.commands import (
+    echo,
+    explore,
+    fuse,
+    gaze_experiment,
+    perceive,
+    record,
+    run,
+    schema,
+    sim,
+    up,
+)
 from services.common.log import setup_logging
 
-COMMANDS = (run, explore, up, sim, perceive, fuse, echo, record, schema)
+COMMANDS = (run, explore, up, sim, perceive, fuse, gaze_experiment, echo, record, schema)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -124,3 +124,30 @@ def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Pa
     path = out / "report.html"
     path.write_text("\n".join(parts))
     return path
+
+
+def gaze_plots(modes: dict[str, dict], out: Path) -> list[Path]:
+    """The gaze experiment over time (thesis Fig. 5.10): ``flow.png`` (optical-flow error per
+    frame pair, deg/s) and ``blur.png`` (Crete et al. blur per frame), one line per mode
+    (stabilised / unstabilised) and object run."""
+    plt = _plt()
+    paths = []
+    for name, attr, title in (
+        ("flow", "flow", "optical-flow error, deg/s (Farnebäck RMSE)"),
+        ("blur", "blur", "perceptual blur (Crete et al. 2007), 0 sharp … 1 blurred"),
+    ):
+        fig, ax = plt.subplots(figsize=(6.4, 3.6))
+        for mode, runs in modes.items():
+            for obj, run in runs.items():
+                values = getattr(run, attr)
+                t = run.times[-len(values) :]
+                ax.plot(t, values, lw=1, label=f"{mode}, {obj}")
+        ax.set_xlabel("time, s")
+        ax.set_title(title)
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        path = out / f"{name}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        paths.append(path)
+    return paths

@@ -1,0 +1,108 @@
+"""``avs gaze-experiment``: thesis 5.4.1 in the sim: the foveal camera while the hip swings,
+with the gaze stabiliser on or off (``--compare``: both, printed as thesis Table 5.1).
+Writes ``DIR/metrics.json``, ``flow.png`` (optical-flow error over time) and ``blur.png``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import asdict
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "gaze-experiment",
+        help="object localisation while moving, stabilised or not (thesis 5.4.1, Table 5.1)",
+        description=__doc__,
+    )
+    p.add_argument("--robot", default="armar3")
+    p.add_argument("--scene", default="localization", help="scene name or MJCF file")
+    p.add_argument("--disturbance", default="hip_yaw", help="the joint that swings")
+    p.add_argument("--amplitude", type=float, default=20.0, help="A of q̇ = A·cos(2πft), deg/s")
+    p.add_argument("--frequency", type=float, default=0.25, help="f, Hz")
+    p.add_argument("--duration", type=float, default=10.0, help="s")
+    p.add_argument("--stabilize", choices=["on", "off"], default="on")
+    p.add_argument("--compare", action="store_true", help="run off and on, print Table 5.1")
+    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.set_defaults(func=_run)
+
+
+def _bar(label: str):
+    shown = [-1]
+
+    def show(done: float) -> None:
+        if int(30 * done) == shown[0]:
+            return
+        shown[0] = int(30 * done)
+        print(f"\r{label} [{'#' * shown[0]:<30}] {100 * done:3.0f} %", end="",
+              file=sys.stderr, flush=True)  # fmt: skip
+
+    return show
+
+
+def experiment(config, out: Path) -> dict:
+    from avs.gaze_experiment import run_object, summarise
+    from avs.report import gaze_plots
+
+    out.mkdir(parents=True, exist_ok=True)
+    mode = "stabilised" if config.stabilize else "unstabilised"
+    runs = {}
+    for name in ("cup", "textured"):
+        runs[name] = run_object(config, name, _bar(f"{mode:>12} {name:<8}"))
+        print(file=sys.stderr)
+    metrics = summarise(runs) | {"config": asdict(config)}
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    gaze_plots({mode: runs}, out)
+    return metrics | {"runs": runs}
+
+
+def table(off: dict, on: dict) -> str:
+    """Thesis Table 5.1's layout: the flow error unstabilised, stabilised and the decrease."""
+    fo, fn = off["flow_rmse_deg_s"], on["flow_rmse_deg_s"]
+    rows = [
+        ("flow RMSE mean (deg/s)", fo["mean"], fn["mean"]),
+        ("flow RMSE std (deg/s)", fo["std"], fn["std"]),
+        ("flow RMSE max (deg/s)", fo["max"], fn["max"]),
+        ("blur mean (Crete)", off["blur"]["mean"], on["blur"]["mean"]),
+    ]
+    lines = [f"{'':<24}{'unstabilised':>14}{'stabilised':>12}{'decrease':>10}"]
+    for name, a, b in rows:
+        lines.append(f"{name:<24}{a:>14.3f}{b:>12.3f}{100 * (a - b) / a:>9.0f} %")
+    for k in ("cup", "textured"):
+        a, b = off["localization_success"][k], on["localization_success"][k]
+        lines.append(f"{'localised: ' + k:<24}{100 * a:>13.0f}%{100 * b:>11.0f}%")
+    return "\n".join(lines)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from avs.gaze_experiment import GazeExperimentConfig
+    from avs.report import gaze_plots
+
+    def config(on: bool) -> GazeExperimentConfig:
+        return GazeExperimentConfig(
+            robot=args.robot, scene=args.scene, disturbance=args.disturbance,
+            amplitude=args.amplitude, frequency=args.frequency, duration=args.duration,
+            stabilize=on,
+        )  # fmt: skip
+
+    if not args.compare:
+        m = experiment(config(args.stabilize == "on"), args.out)
+        f = m["flow_rmse_deg_s"]
+        print(f"flow RMSE {f['mean']:.3f} ± {f['std']:.3f} deg/s (max {f['max']:.3f}), blur "
+              f"{m['blur']['mean']:.3f}, localised: cup {m['localization_success']['cup']:.0%}, "
+              f"textured {m['localization_success']['textured']:.0%}")  # fmt: skip
+        print(f"wrote {args.out / 'metrics.json'}, flow.png, blur.png")
+        return 0
+    off = experiment(config(False), args.out / "off")
+    on = experiment(config(True), args.out / "on")
+    summary = {
+        k: {m: v for m, v in r.items() if m != "runs"} for k, r in (("off", off), ("on", on))
+    }
+    summary["flow_decrease"] = 1 - on["flow_rmse_deg_s"]["mean"] / off["flow_rmse_deg_s"]["mean"]
+    (args.out / "metrics.json").write_text(json.dumps(summary, indent=2))
+    gaze_plots({"unstabilised": off["runs"], "stabilised": on["runs"]}, args.out)
+    print(table(off, on))
+    print(f"wrote {args.out}/metrics.json (and off/, on/), flow.png, blur.png")
+    return 0

@@ -1,0 +1,74 @@
+"""The gaze experiment's measures on images with known answers, and the experiment itself
+(thesis 5.4.1): stabilised flow error at most half the unstabilised, and both objects
+localised more often with the stabiliser on."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from itertools import pairwise
+
+import cv2
+import numpy as np
+import pytest
+
+from avs.image_quality import CupFinder, blur, flow_rmse_deg_s
+from tests.conftest import ROOT
+
+
+def texture(seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    small = rng.integers(0, 255, (60, 80, 3), dtype=np.uint8)
+    return cv2.resize(small, (320, 240), interpolation=cv2.INTER_CUBIC)
+
+
+def test_flow_of_a_known_shift_in_degrees_per_second():
+    img = texture()
+    shifted = np.roll(img, 4, axis=1)  # 4 px to the right
+    deg = (0.025, 0.0167)
+    measured = flow_rmse_deg_s(img[:, 20:-20], shifted[:, 20:-20], deg, 30.0)
+    assert measured == pytest.approx(4 * 0.025 * 30, rel=0.1)
+    assert flow_rmse_deg_s(img, img, deg, 30.0) < 0.01
+
+
+def test_blur_grows_with_the_blur_of_the_image():
+    img = texture()
+    values = [blur(img)] + [blur(cv2.GaussianBlur(img, (0, 0), s)) for s in (1, 2, 4)]
+    assert all(b > a for a, b in pairwise(values)), values
+    assert values[0] < 0.4 and values[-1] > 0.6
+
+
+def test_the_cup_finder_wants_the_cup_where_it_is():
+    img = np.full((240, 320, 3), 200, np.uint8)
+    cv2.circle(img, (160, 120), 25, (30, 170, 40), -1)
+    finder = CupFinder.from_reference(img)
+    assert finder.found(img, np.array([160.0, 120.0]))
+    assert not finder.found(img, np.array([220.0, 120.0]))  # not where the cup should be
+    smeared = cv2.blur(img, (101, 1))  # motion blur: the green washes out
+    assert not finder.found(smeared, np.array([160.0, 120.0]))
+
+
+@pytest.mark.timeout(600)
+def test_stabilised_flow_error_is_at_most_half_and_localisation_succeeds_more(tmp_path):
+    """One full period of the hip swing (4 s at 0.25 Hz), both modes, both objects."""
+    out = subprocess.run(
+        [sys.executable, "-m", "avs.cli", "gaze-experiment", "--compare", "--duration", "4",
+         "--out", str(tmp_path)],
+        cwd=ROOT, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-3000:]
+    m = json.loads((tmp_path / "metrics.json").read_text())
+    off, on = m["off"], m["on"]
+    assert on["flow_rmse_deg_s"]["mean"] <= 0.5 * off["flow_rmse_deg_s"]["mean"], m
+    assert on["blur"]["mean"] < off["blur"]["mean"]
+    for obj in ("cup", "textured"):
+        assert on["localization_success"][obj] > off["localization_success"][obj], m
+    assert on["gaze_error_deg"]["cup"] < 0.5 < off["gaze_error_deg"]["cup"]
+    assert "decrease" in out.stdout and "localised: textured" in out.stdout
+    for d in (tmp_path, tmp_path / "on", tmp_path / "off"):
+        for name in ("flow.png", "blur.png"):
+            assert (d / name).stat().st_size > 1000
+    run = json.loads((tmp_path / "on" / "metrics.json").read_text())
+    assert set(run) >= {"flow_rmse_deg_s", "blur", "localization_success"}
+    assert set(run["flow_rmse_deg_s"]) == {"mean", "std", "max"}
