@@ -60,6 +60,7 @@ class EpisodeConfig:
     views: int = 10
     seed: int = 0
     voxel: float = 0.01
+    ig_measure: str = "volume"  # or "rays": Eq. 4.6 as printed (services/nbv/README.md)
     out: Path = Path("runs/explore")
     ready_timeout: float = 120.0
 
@@ -197,6 +198,7 @@ class Episode:
             "AVS_NBV_SAMPLING": c.sampling,
             "AVS_NBV_MAX_VIEWS": str(c.views),
             "AVS_NBV_SEED": str(c.seed),
+            "AVS_NBV_IG_MEASURE": c.ig_measure,
             "AVS_PERCEPTION_CAMERA": "registered" if c.fusion != "sg" else "head_rgbd",
         }
 

@@ -22,6 +22,12 @@ def _episode_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fusion", choices=["pc", "sg", "pc+sg"], default="sg")
     p.add_argument("--views", type=int, default=10, help="at most this many views (n)")
     p.add_argument("--voxel", type=float, default=0.01, help="occupancy voxel, m")
+    p.add_argument(
+        "--ig-measure",
+        choices=["volume", "rays"],
+        default="volume",
+        help="information gain: unknown voxels seen (volume) or Eq. 4.6's per-ray count",
+    )
     p.add_argument("--out", type=Path, required=True, help="output directory")
 
 
@@ -77,7 +83,7 @@ def _config(args: argparse.Namespace, **kw):
 
     return EpisodeConfig(
         scene=args.scene, robot=args.robot, sampling=args.sampling, fusion=args.fusion,
-        views=args.views, voxel=args.voxel, out=args.out, **kw,
+        views=args.views, voxel=args.voxel, ig_measure=args.ig_measure, out=args.out, **kw,
     )  # fmt: skip
 
 
