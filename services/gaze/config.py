@@ -25,7 +25,10 @@ class GazeSettings(ServiceSettings):
     damping: float = Field(0.02, ge=0, description="λ of the damped least squares")
     eye_weight: float = Field(8.0, gt=0, description="eye joints' weight, the neck's being 1")
     vor_gain: float = Field(1.0, ge=0, description="VOR: share of the unpredicted rotation")
-    okr_gain: float = Field(0.5, ge=0, description="OKR: share of the retinal slip")
+    okr_gain: float = Field(1.0, ge=0, description="OKR: share of the retinal slip taken")
+    okr_camera: str = Field(
+        "", description="camera whose frames give the retinal slip (default: the first fixating)"
+    )
     odometry: bool = Field(True, description="feed the platform's odometry forward")
     stale_ms: float = Field(
         50.0, gt=0, description="an input older than this holds the head still (ms)"

@@ -25,6 +25,7 @@ from schemas import (
     HeadCommand,
     ImuSample,
     JointState,
+    RgbdFrame,
     SceneObservation,
 )
 from services.common.node import Node
@@ -32,6 +33,7 @@ from services.common.robots import robot_mjcf
 from services.gaze.config import GazeSettings
 from services.gaze.ego_sphere import EgoSphere
 from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics
+from services.gaze.okr import RetinalSlip
 from services.gaze.saliency import ObjectBelief
 from services.gaze.stabiliser import GazeStabiliser, StabiliserConfig
 
@@ -66,6 +68,12 @@ class GazeNode:
                 speed=SPEED.get(settings.robot, {}),
             ),
         )  # fmt: skip
+        self.okr_camera = settings.okr_camera or cameras[0]
+        if self.okr_camera not in cameras:
+            raise ValueError(f"okr_camera {self.okr_camera!r} is not a fixating camera {cameras}")
+        self.okr_kin = GazeKinematics(robot_mjcf(settings.robot), [self.okr_camera])
+        self.slip: RetinalSlip | None = None
+        self.slip_stamp: float | None = None
         self.ego = EgoSphere(settings.points, settings.expiry)
         look = [n for n in self.joints if n not in ("neck_roll", "eye_pan_right")]
         self.ego.prune(self.kin.reachable_directions(cameras[0], look, 5000), 4.0)
@@ -75,6 +83,7 @@ class GazeNode:
         self.received: dict[str, float] = {}  # wall time of the last sample per input
         self.targets: dict[str, GazeTarget] = {}  # the freshest per source
         self.targets_wall: dict[str, float] = {}
+        self.current: np.ndarray | None = None  # the fixation point of the last control step
         self.objects: list[ObjectBelief] = []
         self.chosen: np.ndarray | None = None  # ego-sphere winner (world point)
         self.chosen_at = -math.inf
@@ -90,6 +99,8 @@ class GazeNode:
         node.subscribe(k.gaze_target(), GazeTarget, self.on_target)
         node.subscribe(k.observation(), SceneObservation, self.on_observation, latest_only=True)
         node.subscribe(k.imu(), ImuSample, self.on_imu)
+        if settings.okr_gain > 0:
+            node.subscribe(k.rgbd(self.okr_camera), RgbdFrame, self.on_frame, latest_only=True)
         node._start_thread(self.watchdog, "gaze:watchdog")
         if settings.egosphere_rate > 0:
             node._start_thread(self.publish_egosphere, "gaze:egosphere")
@@ -126,6 +137,25 @@ class GazeNode:
                 else:
                     self.objects.append(ObjectBelief.first(centre, R, obs.stamp, self.s.acuity))
 
+    def on_frame(self, frame: RgbdFrame) -> None:
+        """OKR: the retinal slip of the fixation point between this frame and the last, against
+        the forward model's camera poses (the joint state and odometry at hand)."""
+        js, base, target = self.joint_state, self.base, self.current
+        if frame.rgb is None or js is None or base is None or target is None:
+            return
+        kin = self.okr_kin
+        joints = dict(zip(js.names, js.position.tolist(), strict=True))
+        kin.update(kin.configuration((base.x, base.y, base.yaw), joints))
+        if self.slip is None:
+            K = frame.intrinsics
+            self.slip = RetinalSlip((K.fx, K.fy, K.cx, K.cy))
+        slip = self.slip.update(frame.rgb, kin.camera_pose(self.okr_camera), frame.stamp, target)
+        last, self.slip_stamp = self.slip_stamp, frame.stamp
+        if slip is not None and last is not None:
+            with self.lock:
+                self.stab.observe_slip(self.okr_camera, slip, frame.stamp - last)
+            self.node.metrics.gauge("okr_offset_m", float(np.linalg.norm(self.stab.offset)))
+
     def on_imu(self, imu: ImuSample) -> None:
         """One control step per IMU sample."""
         now = time.monotonic()
@@ -143,14 +173,17 @@ class GazeNode:
             self.hold("no fixation target")
             return
         names = js.names
-        cmd = self.stab.command(
-            target,
-            (base.x, base.y, base.yaw),
-            (base.v_x, base.v_y, base.v_yaw),
-            dict(zip(names, js.position.tolist(), strict=True)),
-            dict(zip(names, js.velocity.tolist(), strict=True)),
-            np.asarray(imu.angular_velocity, float),
-        )
+        with self.lock:
+            cmd = self.stab.command(
+                target,
+                (base.x, base.y, base.yaw),
+                (base.v_x, base.v_y, base.v_yaw),
+                dict(zip(names, js.position.tolist(), strict=True)),
+                dict(zip(names, js.velocity.tolist(), strict=True)),
+                np.asarray(imu.angular_velocity, float),
+                imu.stamp,
+            )
+            self.current = target + self.stab.offset
         self.out_head.put(
             HeadCommand(
                 seq=self._seq(), stamp=imu.stamp, names=list(cmd.velocity), mode="velocity",

@@ -8,12 +8,16 @@ Head and eye velocities q̇_h solve J_h·q̇_h = ẋ, the virtual end-effectors'
                                    measured velocities of the other joints and the odometry
         − ω_u × (x_vee − p_imu)    VOR: the head rotation the gyro measures and the forward
                                    model did not predict (reafference: ω_u = ω_gyro − J_ω·v)
-        + k_okr·ω_s × (x_vee − p)  OKR: retinal slip (image motion of the target) left over
 
 by weighted damped least squares, q̇_h = W⁻¹J_hᵀ(J_h W⁻¹J_hᵀ + λ²I)⁻¹ẋ, with the eye joints'
 weight 8× the neck's (the neck moves first; the eyes only where they must, 5.2), the joints
 drawn to mid-range in the null space; joints at their speed or position limits are held there
-and the rest solve the task. Pure: arrays in, velocities out."""
+and the rest solve the task.
+
+OKR: the retinal slip s the forward model did not predict (``okr.RetinalSlip``: the target
+drifting across the image) moves the point held, x_des + o, by k_okr·d·(x_cam·s_x + y_cam·s_y)·Δt
+(the image says the target is elsewhere than the model thinks; o leaks back over 10 s).
+Pure: arrays in, velocities out."""
 
 from __future__ import annotations
 
@@ -33,7 +37,8 @@ class StabiliserConfig:
     damping: float = 0.02  # λ
     eye_weight: float = 8.0  # W of the eye joints, the neck's being 1 (5.2)
     vor_gain: float = 1.0
-    okr_gain: float = 0.5
+    okr_gain: float = 1.0  # the measured drift taken in full (less lags, more overshoots)
+    okr_leak: float = 10.0  # s: the OKR offset decays with this time constant
     feedforward: bool = True  # predict self-induced motion from joint velocities
     odometry: bool = True  # … and from the platform's odometry
     speed: Mapping[str, float] = field(default_factory=dict)  # rad/s per joint (default 2)
@@ -57,6 +62,20 @@ class GazeStabiliser:
         self.vmax = np.array([config.speed.get(n, 2.0) for n in config.joints])
         self.lower = np.array([kinematics.lower[n] for n in config.joints])
         self.upper = np.array([kinematics.upper[n] for n in config.joints])
+        self.last_target: np.ndarray | None = None
+        self.offset = np.zeros(3)  # OKR: where the image says the fixation point is, minus x_des
+        self.stamp: float | None = None
+
+    def observe_slip(self, camera: str, slip: np.ndarray, dt: float) -> None:
+        """OKR: the slip (rad/s along ``camera``'s x and y) over the last ``dt`` s moves the held
+        point across that camera's view, at the fixation distance (from the last update)."""
+        T = self.kin.camera_pose(camera)
+        d = (
+            float(np.linalg.norm(self.last_target - T[:3, 3]))
+            if self.last_target is not None
+            else 1.5
+        )
+        self.offset += self.c.okr_gain * d * (T[:3, :2] @ (np.asarray(slip, float) * dt))
 
     def command(
         self,
@@ -66,14 +85,18 @@ class GazeStabiliser:
         position: Mapping[str, float],
         velocity: Mapping[str, float],
         gyro: np.ndarray | None = None,
-        slip: Mapping[str, np.ndarray] | None = None,
+        stamp: float | None = None,
     ) -> GazeCommand:
         """Head and eye velocities for one control period. ``base``: odometry (x, y, yaw),
         ``base_twist`` its world velocity (vx, vy, yaw rate); ``position``/``velocity``: the
         measured joints; ``gyro``: the head IMU's angular velocity (IMU frame), None without
-        one; ``slip``: per camera, the angular velocity (world) at which the target drifts
-        across its image, None without images."""
+        one; ``stamp``: the samples' time (for the OKR offset's leak)."""
         c, kin = self.c, self.kin
+        if stamp is not None and self.stamp is not None:
+            self.offset *= np.exp(-max(0.0, stamp - self.stamp) / c.okr_leak)
+        self.stamp = stamp
+        self.last_target = np.asarray(x_des, float)
+        x_des = self.last_target + self.offset
         q = kin.configuration(base, position)
         kin.update(q)
         v = kin.velocity(base_twist if c.odometry else (0.0, 0.0, 0.0), velocity)
@@ -93,9 +116,6 @@ class GazeStabiliser:
             if c.feedforward:
                 xd = xd - J @ v_other
             xd = xd - c.vor_gain * cross(omega_u, x_vee - p_imu)
-            if slip is not None and cam in slip:
-                p = kin.camera_pose(cam)[:3, 3]
-                xd = xd + c.okr_gain * cross(np.asarray(slip[cam], float), x_vee - p)
             rows.append(across @ J[:, self.head])
             targets.append(across @ xd)
         qh = np.array([position.get(n, 0.0) for n in c.joints])

@@ -1,6 +1,7 @@
 """The gaze service as a process against the sim as a process (real time, ARMAR-III in the
 localization scene) over a loopback router: a manual gaze/target is held while the hip
-swings, commands carry the IMU stamp that caused them, and a silent IMU holds the head."""
+swings (OKR on the foveal frames), commands carry the IMU stamp that caused them, and a
+silent IMU holds the head."""
 
 from __future__ import annotations
 
@@ -48,7 +49,18 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
 ):
     env = avs_env(router, MUJOCO_GL="egl", AVS_ROBOT="armar3")
     procs.python(
-        ["-m", "services.sim", "--instance", "sim-test", "--scene", "localization", "--fps", "0"],
+        [
+            "-m",
+            "services.sim",
+            "--instance",
+            "sim-test",
+            "--scene",
+            "localization",
+            "--cameras",
+            "left_foveal",
+            "--fps",
+            "10",
+        ],
         env=env,
     )
     gaze = procs.python(["-m", "services.gaze", "--instance", "gaze-test"], env=env)
@@ -109,6 +121,9 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     assert all(c.trigger_stamp is not None for c in gaze_cmds if np.any(c.values))
     m = metrics(client)
     assert m.extra["control_steps"] > 3000 and m.extra["holding"] == 0
+    # OKR runs on the foveal frames; with the forward model right there is little slip to take
+    assert m.messages_in.get(KEYS.rgbd("left_foveal"), 0) > 30
+    assert 0 < m.extra["okr_offset_m"] < 0.01
     # the sim pauses: no IMU, so the head is held (one zero command) and the node says so
     control(client, op="pause")
     wait_for(lambda: metrics(client).extra.get("holding") == 1, 5, "gaze to hold the head")
