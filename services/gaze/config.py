@@ -33,6 +33,10 @@ class GazeSettings(ServiceSettings):
     stale_ms: float = Field(
         50.0, gt=0, description="an input older than this holds the head still (ms)"
     )
+    blob_camera: str = Field(
+        "", description="camera whose frames give colour blobs for the ego-sphere ('' = none)"
+    )
+    blob_saliency: float = Field(0.5, ge=0, description="saliency of a colour blob")
     points: int = Field(40_000, ge=100, description="ego-sphere points")
     expiry: float = Field(5.0, gt=0, description="saliency values expire after this, s")
     select_every: float = Field(2.0, gt=0, description="s between ego-sphere selections")

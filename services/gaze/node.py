@@ -34,7 +34,7 @@ from services.gaze.config import GazeSettings
 from services.gaze.ego_sphere import EgoSphere
 from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics
 from services.gaze.okr import RetinalSlip
-from services.gaze.saliency import ObjectBelief
+from services.gaze.saliency import ObjectBelief, colour_blobs, pixel_rays
 from services.gaze.stabiliser import GazeStabiliser, StabiliserConfig
 
 log = logging.getLogger("avs.gaze")
@@ -99,6 +99,9 @@ class GazeNode:
         node.subscribe(k.gaze_target(), GazeTarget, self.on_target)
         node.subscribe(k.observation(), SceneObservation, self.on_observation, latest_only=True)
         node.subscribe(k.imu(), ImuSample, self.on_imu)
+        if settings.blob_camera:
+            node.subscribe(k.rgbd(settings.blob_camera), RgbdFrame, self.on_blobs,
+                           latest_only=True, name="on_blobs")  # fmt: skip
         if settings.okr_gain > 0:
             node.subscribe(k.rgbd(self.okr_camera), RgbdFrame, self.on_frame, latest_only=True)
         node._start_thread(self.watchdog, "gaze:watchdog")
@@ -155,6 +158,33 @@ class GazeNode:
             with self.lock:
                 self.stab.observe_slip(self.okr_camera, slip, frame.stamp - last)
             self.node.metrics.gauge("okr_offset_m", float(np.linalg.norm(self.stab.offset)))
+
+    def on_blobs(self, frame: RgbdFrame) -> None:
+        """Single-coloured blobs of the frame onto the ego-sphere (5.4.2), a constant saliency
+        at each blob's direction (platform frame, from the head), its depth if the frame has
+        one."""
+        js, base = self.joint_state, self.base
+        if frame.rgb is None or js is None or base is None or frame.camera != self.s.blob_camera:
+            return
+        blobs = colour_blobs(frame.rgb)
+        if not blobs:
+            return
+        K = frame.intrinsics
+        uv = np.array([(u, v) for u, v, _ in blobs])
+        rays = pixel_rays(uv, (K.fx, K.fy, K.cx, K.cy), frame.T_world_camera)
+        c, s = math.cos(base.yaw), math.sin(base.yaw)
+        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # world ← platform
+        with self.lock:
+            head = self._head_position()
+        for (u, v), ray in zip(uv, rays, strict=True):
+            z = float(frame.depth[int(v), int(u)]) if frame.depth is not None else 0.0
+            point = frame.T_world_camera[:3, 3] + ray * (z / ray @ frame.T_world_camera[:3, 2]
+                                                          if z > 0 else 1.5)  # fmt: skip
+            to = point - head
+            with self.lock:
+                self.ego.add("blob", R.T @ to, self.s.blob_saliency, frame.stamp,
+                             distance=float(np.linalg.norm(to)))  # fmt: skip
+        self.node.metrics.gauge("blobs", len(blobs))
 
     def on_imu(self, imu: ImuSample) -> None:
         """One control step per IMU sample."""

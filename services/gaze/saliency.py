@@ -93,3 +93,14 @@ def colour_blobs(
             if size >= min_pixels:
                 blobs.append((float(u), float(v), int(size)))
     return blobs
+
+
+def pixel_rays(
+    uv: np.ndarray, intrinsics: tuple[float, float, float, float], T_world_camera: np.ndarray
+) -> np.ndarray:
+    """World unit directions of the rays through pixels ``uv`` (n × 2) of a pinhole camera."""
+    fx, fy, cx, cy = intrinsics
+    uv = np.atleast_2d(np.asarray(uv, float))
+    d = np.column_stack([(uv[:, 0] - cx) / fx, (uv[:, 1] - cy) / fy, np.ones(len(uv))])
+    d = d @ np.asarray(T_world_camera)[:3, :3].T
+    return d / np.linalg.norm(d, axis=1, keepdims=True)

@@ -11,7 +11,7 @@ import pytest
 from services.common.robots import robot_mjcf
 from services.gaze.ego_sphere import EgoSphere
 from services.gaze.kinematics import GazeKinematics
-from services.gaze.saliency import ObjectBelief, colour_blobs, entropy
+from services.gaze.saliency import ObjectBelief, colour_blobs, entropy, pixel_rays
 
 AHEAD, LEFT, BEHIND = np.array([1.0, 0, -0.3]), np.array([0.3, 1.0, -0.2]), np.array([-1.0, 0, 0])
 
@@ -99,3 +99,12 @@ def test_a_green_cup_is_one_colour_blob_at_its_centre():
     (u0, v0, n0), (u1, v1, _) = blobs
     assert abs(u0 - 200) < 0.5 and abs(v0 - 80) < 0.5 and 1200 < n0 < 1300
     assert abs(u1 - 39.5) < 0.5 and abs(v1 - 119.5) < 0.5
+
+
+def test_a_blob_pixel_gives_its_ray_in_the_world():
+    T = np.eye(4)
+    T[:3, :3] = [[0, 0, 1], [-1, 0, 0], [0, -1, 0]]  # optical z along world x, image x = −y
+    K = (300.0, 300.0, 160.0, 120.0)
+    rays = pixel_rays(np.array([[160.0, 120.0], [460.0, 120.0]]), K, T)
+    assert np.allclose(rays[0], [1, 0, 0])
+    assert np.allclose(rays[1], np.array([1, -1, 0]) / np.sqrt(2))  # 45° to the right

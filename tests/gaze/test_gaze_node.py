@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from schemas import (
+    EgoSphereSnapshot,
     GazeTarget,
     HeadCommand,
     JointState,
@@ -63,7 +64,9 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
         ],
         env=env,
     )
-    gaze = procs.python(["-m", "services.gaze", "--instance", "gaze-test"], env=env)
+    gaze = procs.python(
+        ["-m", "services.gaze", "--instance", "gaze-test", "--blob-camera", "left_foveal"], env=env
+    )
     wait_for(
         lambda: (
             {KEYS.alive("sim", "sim-test"), KEYS.alive("gaze", "gaze-test")}
@@ -75,6 +78,7 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     lock = threading.Lock()
     joints: list[JointState] = []
     commands: list[HeadCommand] = []
+    egospheres: list[EgoSphereSnapshot] = []
 
     def on(sample, kind, into):
         with lock:
@@ -83,6 +87,7 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     subs = [
         client.declare_subscriber(KEYS.joints(), lambda s: on(s, JointState, joints)),
         client.declare_subscriber(KEYS.cmd_head(), lambda s: on(s, HeadCommand, commands)),
+        client.declare_subscriber(KEYS.egosphere(), lambda s: on(s, EgoSphereSnapshot, egospheres)),
     ]
     target = client.declare_publisher(KEYS.gaze_target())
     seq = 0
@@ -124,6 +129,11 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     # OKR runs on the foveal frames; with the forward model right there is little slip to take
     assert m.messages_in.get(KEYS.rgbd("left_foveal"), 0) > 30
     assert 0 < m.extra["okr_offset_m"] < 0.01
+    assert m.extra["blobs"] >= 1  # the green cup (and the box's marks) on the ego-sphere
+    with lock:
+        snapshots = [e for e in egospheres if "blob" in e.sources]
+    assert snapshots and len(snapshots[-1].saliency) == 2000
+    assert snapshots[-1].saliency.max() > 0.05
     # the sim pauses: no IMU, so the head is held (one zero command) and the node says so
     control(client, op="pause")
     wait_for(lambda: metrics(client).extra.get("holding") == 1, 5, "gaze to hold the head")
