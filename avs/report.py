@@ -27,6 +27,13 @@ def _plt():
     return plt
 
 
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    _plt().close(fig)
+    return path
+
+
 def series_plots(runs: dict[str, list[dict]], out: Path) -> list[Path]:
     """One plot per series; ``runs`` maps a label to its episodes (several seeds: median line
     and min-max band)."""
@@ -50,11 +57,7 @@ def series_plots(runs: dict[str, list[dict]], out: Path) -> list[Path]:
         ax.set_title(title)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.legend()
-        fig.tight_layout()
-        path = out / f"{name}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        paths.append(path)
+        paths.append(_save(fig, out / f"{name}.png"))
     return paths
 
 
@@ -91,11 +94,7 @@ def map_plot(episodes: dict[str, dict], out: Path) -> Path:
     ax.set_ylabel("y, m")
     ax.set_title("chosen views (platform poses)")
     ax.legend(loc="best")
-    fig.tight_layout()
-    path = out / "views_map.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, out / "views_map.png")
 
 
 def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Path) -> Path:
@@ -145,9 +144,5 @@ def gaze_plots(modes: dict[str, dict], out: Path) -> list[Path]:
         ax.set_xlabel("time, s")
         ax.set_title(title)
         ax.legend(fontsize=8)
-        fig.tight_layout()
-        path = out / f"{name}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        paths.append(path)
+        paths.append(_save(fig, out / f"{name}.png"))
     return paths
