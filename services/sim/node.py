@@ -166,8 +166,9 @@ class SimNode:
             if due > 0:
                 with self.lock:
                     self.advance(due)
-            else:
-                time.sleep(w.timestep / speed)
+            else:  # sleep until the next step is due, not a whole step: late wake-ups would
+                # make the IMU come in bursts of two
+                time.sleep(max(0.0, (w.time + w.timestep - target) / speed))
 
     # -- publishing ---------------------------------------------------------------------------
 
