@@ -27,6 +27,7 @@ from schemas import (
 from services.common.robots import robot_mjcf
 from services.gaze.kinematics import GazeKinematics
 from tests.conftest import avs_env, liveliness_tokens, wait_for
+from tests.scene_memory.builders import box, cylinder, observation
 
 KEYS = Keys("armar3")
 CUP = np.array([1.5, 0.15, 0.86])
@@ -39,9 +40,13 @@ def control(client, **request) -> SimStatus:
     return status
 
 
-def metrics(client) -> ServiceMetrics:
-    replies = [r.ok for r in client.get(KEYS.metrics("gaze", "gaze-test"), timeout=5) if r.ok]
+def metrics_of(client, instance: str) -> ServiceMetrics:
+    replies = [r.ok for r in client.get(KEYS.metrics("gaze", instance), timeout=5) if r.ok]
     return decode(replies[0].payload.to_bytes(), ServiceMetrics)
+
+
+def metrics(client) -> ServiceMetrics:
+    return metrics_of(client, "gaze-test")
 
 
 @pytest.mark.timeout(180)
@@ -143,3 +148,58 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     for s in subs:
         s.undeclare()
     assert gaze.poll() is None
+
+
+BOX = np.array([1.5, -0.15, 0.84])
+
+
+@pytest.mark.timeout(180)
+def test_without_a_target_the_gaze_goes_to_the_object_it_knows_least(router, client, procs):
+    """Thesis 5.1: the cup has been localised twice (σ below the 1 cm task acuity: no
+    saliency), the box once (σ above it): the ego-sphere's winner is the box, and the cup is
+    never fixated (inhibition of return alone would take turns between two salient objects)."""
+    env = avs_env(router, MUJOCO_GL="egl", AVS_ROBOT="armar3")
+    procs.python(["-m", "services.sim", "--instance", "sim-sel", "--scene", "localization",
+                  "--fps", "0"], env=env)  # fmt: skip
+    procs.python(["-m", "services.gaze", "--instance", "gaze-sel", "--select-every", "1.0"],
+                 env=env)  # fmt: skip
+    wait_for(
+        lambda: (
+            {KEYS.alive("sim", "sim-sel"), KEYS.alive("gaze", "gaze-sel")}
+            <= liveliness_tokens(client, KEYS.alive())
+        ),
+        90,
+        "sim and gaze to come up",
+    )
+    states: list[JointState] = []
+    sub = client.declare_subscriber(
+        KEYS.joints(), lambda s: states.append(decode(s.payload.to_bytes(), JointState))
+    )
+    kin = GazeKinematics(robot_mjcf("armar3"), ["left_foveal"])
+
+    def error(js: JointState, point: np.ndarray) -> float:
+        kin.update(
+            kin.configuration((0.0, 0.0, 0.0), dict(zip(js.names, js.position, strict=True)))
+        )
+        return math.degrees(kin.fixation("left_foveal", point)[2])
+
+    wait_for(lambda: len(states) > 10, 10, "joint states")
+    out = client.declare_publisher(KEYS.observation())
+    T = np.eye(4)
+    T[:3, 3] = [0.1, 0.05, 1.55]  # about where the head is
+    cup, box_ = (
+        cylinder(0, (1.5, 0.15, 0.81), 0.04, 0.1, np.pi),
+        box(1, tuple(BOX), (0.08, 0.2, 0.16)),
+    )
+    # one observation: the cup found twice (two results fused in turn), the box once
+    obs = observation(1, [cup, cup.model_copy(update={"id": 2}), box_], T=T)
+    out.put(encode(obs.model_copy(update={"stamp": states[-1].stamp})))
+    start = len(states)
+    wait_for(lambda: error(states[-1], BOX) < 0.5, 10, "the gaze on the box")
+    time.sleep(2.0)  # and a few selections more
+    cup_errors = [error(js, CUP) for js in states[start::5]]
+    print(f"closest to the cup: {min(cup_errors):.2f}°, first {cup_errors[0]:.2f}°")
+    assert min(cup_errors) > 2.0  # never on the cup
+    m = metrics_of(client, "gaze-sel")
+    assert m.messages_in.get(KEYS.observation(), 0) == 1
+    sub.undeclare()
