@@ -15,6 +15,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 
 import numpy as np
 
@@ -81,6 +82,7 @@ class GazeNode:
         self.ego.prune(self.kin.reachable_directions(cameras[0], look, 5000), 4.0)
         self.lock = threading.Lock()
         self.joint_state: JointState | None = None
+        self.joint_history: deque[JointState] = deque(maxlen=200)  # 1 s at 200 Hz, for OKR
         self.base: BasePose | None = None
         self.received: dict[str, float] = {}  # wall time of the last sample per input
         self.targets: dict[str, GazeTarget] = {}  # the freshest per source
@@ -114,6 +116,7 @@ class GazeNode:
 
     def on_joints(self, msg: JointState) -> None:
         self.joint_state = msg
+        self.joint_history.append(msg)
         self.received["state/joints"] = time.monotonic()
 
     def on_base(self, msg: BasePose) -> None:
@@ -145,9 +148,12 @@ class GazeNode:
     def on_frame(self, frame: RgbdFrame) -> None:
         """OKR: the retinal slip of the fixation point between this frame and the last, against
         the forward model's camera poses (the joint state and odometry at hand)."""
-        js, base, target = self.joint_state, self.base, self.current
-        if frame.rgb is None or js is None or base is None or target is None:
+        base, target = self.base, self.current
+        history = list(self.joint_history)
+        if frame.rgb is None or not history or base is None or target is None:
             return
+        # the model's pose of the camera when the frame was taken, not when it arrived
+        js = min(history, key=lambda m: abs(m.stamp - frame.stamp))
         kin = self.okr_kin
         joints = dict(zip(js.names, js.position.tolist(), strict=True))
         kin.update(kin.configuration((base.x, base.y, base.yaw), joints))
