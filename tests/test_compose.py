@@ -81,3 +81,19 @@ def test_the_scene_memory_keeps_its_data_in_a_named_volume():
     assert {name for name, _ in volumes} <= set(COMPOSE["volumes"])
     # the image's non-root user owns the mount point, so a new volume is writable
     assert f"install -d -o avs -g avs {data_dir}" in (ROOT / "Dockerfile").read_text()
+
+
+def test_every_service_logs_in_with_its_own_identity():
+    """The router's access control knows a service by its user name (deploy/zenoh/router.json5,
+    tests/test_acl.py); passwords come from .env (python -m avs.acl --credentials .)."""
+    router = COMPOSE["services"]["router"]
+    assert any(v.endswith(":/etc/avs/credentials.txt:ro") for v in router["volumes"])
+    config = zenoh.Config.from_file(str(ROOT / "deploy/zenoh/router.json5"))
+    assert json.loads(config.get_json("access_control/enabled")) is True
+    assert json.loads(config.get_json("transport/auth/usrpwd/dictionary_file")) == (
+        "/etc/avs/credentials.txt"
+    )
+    for name, service in _services().items():
+        env = service["environment"]
+        assert env["AVS_USER"] == name, name
+        assert env["AVS_PASSWORD"].startswith(f"${{AVS_PASSWORD_{name.upper()}:?"), name

@@ -18,7 +18,7 @@ from pathlib import Path
 from types import UnionType
 from typing import Any, ClassVar, Literal, Union, get_args, get_origin
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, ValidationError, field_validator
 
 from schemas.keys import DEFAULT_ROBOT, check_chunk
 
@@ -160,6 +160,10 @@ class TransportSettings(Settings):
         None, description="multicast scouting (default: the config file's, else on)"
     )
     zenoh_config: Path | None = Field(None, description="a Zenoh JSON5 config file to start from")
+    user: str | None = Field(
+        None, description="user name for the router's authentication (and its access control)"
+    )
+    password: SecretStr | None = Field(None, description="its password (never logged)")
 
     @field_validator("robot")
     @classmethod

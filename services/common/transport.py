@@ -55,6 +55,11 @@ def zenoh_config(settings: TransportSettings) -> zenoh.Config:
         config.insert_json5("listen/endpoints", json.dumps(settings.listen))
     if settings.multicast is not None:
         config.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast))
+    if settings.user:
+        if settings.password is None:
+            raise ValueError("a user needs a password (AVS_PASSWORD or --password)")
+        auth = {"user": settings.user, "password": settings.password.get_secret_value()}
+        config.insert_json5("transport/auth/usrpwd", json.dumps(auth))
     return config
 
 
