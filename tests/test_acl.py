@@ -1,11 +1,13 @@
 """The router's access control and authentication, with real Zenoh sessions on loopback: the
-shipped deploy/zenoh/router.json5 (what avs/acl.py makes from the key table) lets each
+shipped deploy/zenoh/router-tcp.json5 (what avs/acl.py makes from the key table) lets each
 identity do what its service does and no more; the observer watches everything and
-publishes nothing; a wrong password does not get in."""
+publishes nothing; a wrong password does not get in; router-tls.json5 takes the same over
+TLS."""
 
 from __future__ import annotations
 
 import json
+import shutil
 import threading
 import time
 
@@ -16,12 +18,14 @@ from avs import acl
 from schemas import Keys, ServiceMetrics, SimControl, SimStatus, decode, encode
 from tests.conftest import ROOT, avs_env, free_port, liveliness_tokens, wait_for
 
-ROUTER = ROOT / "deploy" / "zenoh" / "router.json5"
+ROUTER = ROOT / "deploy" / "zenoh" / "router-tcp.json5"
 PASSWORDS = {u: f"pw-{u}" for u in acl.identities()}
 
 
-def test_the_shipped_router_config_is_what_the_key_table_makes():
-    assert ROUTER.read_text() == acl.render(), "run: python -m avs.acl deploy/zenoh/router.json5"
+def test_the_shipped_router_configs_are_what_the_key_table_makes():
+    for transport in ("tcp", "tls"):
+        shipped = (ROUTER.parent / f"router-{transport}.json5").read_text()
+        assert shipped == acl.render(transport), "run: python -m avs.acl deploy/zenoh"
     put, serve = acl.produced("sim")
     assert "sensors/imu" in put and "cmd/head" not in put and "sim/control" in serve
     assert "cmd/head" in acl.produced("gaze")[0] and "cmd/head" in acl.produced("nbv")[0]
@@ -129,3 +133,43 @@ def test_a_service_process_works_behind_the_secured_router(secured, procs):
     metrics = [r.ok for r in observer.get(Keys().metrics("sim", "sim-acl"), timeout=5) if r.ok]
     assert decode(metrics[0].payload.to_bytes(), ServiceMetrics).service == "sim"
     sub.undeclare()
+
+
+@pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command")
+def test_the_tls_router_takes_clients_that_trust_its_ca(tmp_path):
+    """python -m avs.acl --tls-certs makes a CA and the router's certificate; over tls/ a
+    client with the CA (AVS_TLS_CA) and its credentials gets in and its data flows; one
+    without the CA does not."""
+    from services.common.config import ServiceSettings
+    from services.common.transport import zenoh_config
+
+    tls = acl.write_tls_certificates(tmp_path)
+    creds = tmp_path / "credentials.txt"
+    creds.write_text("".join(f"{u}:{p}\n" for u, p in PASSWORDS.items()))
+    config = zenoh.Config.from_file(str(ROUTER.parent / "router-tls.json5"))
+    port = free_port()
+    config.insert_json5("listen/endpoints", json.dumps([f"tls/127.0.0.1:{port}"]))
+    config.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(creds)))
+    for key, name in (("listen_private_key", "router.key"), ("listen_certificate", "router.crt"),
+                      ("root_ca_certificate", "ca.crt")):  # fmt: skip
+        config.insert_json5(f"transport/link/tls/{key}", json.dumps(str(tls / name)))
+    router = zenoh.open(config)
+
+    def client(user: str, ca: bool) -> zenoh.Session:
+        settings = ServiceSettings(
+            mode="client", connect=[f"tls/localhost:{port}"], multicast=False, user=user,
+            password=PASSWORDS[user], tls_ca=tls / "ca.crt" if ca else None,
+        )  # fmt: skip
+        return zenoh.open(zenoh_config(settings))
+
+    observer, sim = client("observer", True), client("sim", True)
+    got: list[bytes] = []
+    sub = observer.declare_subscriber("avs/**", lambda s: got.append(s.payload.to_bytes()))
+    time.sleep(0.5)
+    sim.put("avs/armar6/sensors/imu", b"imu over tls")
+    wait_for(lambda: got == [b"imu over tls"], 5, "the sample over TLS")
+    with pytest.raises(zenoh.ZError):
+        client("observer", False)  # does not trust the router's certificate
+    sub.undeclare()
+    for s in (sim, observer, router):
+        s.close()

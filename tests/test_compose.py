@@ -30,16 +30,19 @@ def test_validates_against_the_compose_specification():
 
 
 def test_the_router():
+    """The router reads router-<transport>.json5 from the mounted deploy/zenoh: tcp unless
+    AVS_TRANSPORT=tls, the one switch to TLS (services connect to the same scheme)."""
     router = COMPOSE["services"]["router"]
     assert router["image"].startswith("eclipse/zenoh:")
     assert "7447:7447/tcp" in router["ports"]
-    source = router["volumes"][0].split(":")[0]
-    config_file = ROOT / source
-    assert router["command"] == ["-c", router["volumes"][0].split(":")[1]]
-    config = zenoh.Config.from_file(str(config_file))  # zenoh itself parses it
-    assert json.loads(config.get_json("mode")) == "router"
-    assert json.loads(config.get_json("listen/endpoints")) == ["tcp/[::]:7447"]
-    assert json.loads(config.get_json("scouting/multicast/enabled")) is False
+    source, target = router["volumes"][0].split(":")[:2]
+    assert (ROOT / source).resolve() == (ROOT / "deploy/zenoh").resolve()
+    assert router["command"] == ["-c", f"{target}/router-${{AVS_TRANSPORT:-tcp}}.json5"]
+    for transport in ("tcp", "tls"):
+        config = zenoh.Config.from_file(str(ROOT / source / f"router-{transport}.json5"))
+        assert json.loads(config.get_json("mode")) == "router"
+        assert json.loads(config.get_json("listen/endpoints")) == [f"{transport}/[::]:7447"]
+        assert json.loads(config.get_json("scouting/multicast/enabled")) is False
 
 
 def _services() -> dict[str, dict]:
@@ -56,7 +59,7 @@ def test_every_implemented_service_is_deployed_with_the_command_avs_up_runs():
 def test_every_service_reaches_the_router():
     for name, service in _services().items():
         env = service["environment"]
-        assert env["AVS_CONNECT"] == "tcp/router:7447", name
+        assert env["AVS_CONNECT"] == "${AVS_TRANSPORT:-tcp}/router:7447", name
         assert env["AVS_MODE"] == "client" and env["AVS_MULTICAST"] == "false", name
         assert "router" in service["depends_on"], name
 
@@ -69,26 +72,25 @@ def test_scalable_services_have_no_container_name():
 
 def test_the_service_template_is_what_every_service_uses():
     template = COMPOSE["x-avs-service"]
-    assert template["build"] == "." and template["environment"]["AVS_CONNECT"] == "tcp/router:7447"
+    assert template["build"] == "."
+    assert template["environment"]["AVS_CONNECT"] == "${AVS_TRANSPORT:-tcp}/router:7447"
     assert (ROOT / "Dockerfile").is_file()
 
 
 def test_the_scene_memory_keeps_its_data_in_a_named_volume():
     service = COMPOSE["services"]["scene_memory"]
     data_dir = service["environment"]["AVS_SCENE_MEMORY_DATA_DIR"]
-    volumes = [v.split(":") for v in service["volumes"]]
-    assert [data_dir] == [target for _, target in volumes]
-    assert {name for name, _ in volumes} <= set(COMPOSE["volumes"])
+    named = [v.split(":") for v in service["volumes"] if not v.startswith("./")]
+    assert [data_dir] == [target for _, target in named]
+    assert {name for name, _ in named} <= set(COMPOSE["volumes"])
     # the image's non-root user owns the mount point, so a new volume is writable
     assert f"install -d -o avs -g avs {data_dir}" in (ROOT / "Dockerfile").read_text()
 
 
 def test_every_service_logs_in_with_its_own_identity():
-    """The router's access control knows a service by its user name (deploy/zenoh/router.json5,
+    """The router's access control knows a service by its user name (deploy/zenoh/router-*.json5,
     tests/test_acl.py); passwords come from .env (python -m avs.acl --credentials .)."""
-    router = COMPOSE["services"]["router"]
-    assert any(v.endswith(":/etc/avs/credentials.txt:ro") for v in router["volumes"])
-    config = zenoh.Config.from_file(str(ROOT / "deploy/zenoh/router.json5"))
+    config = zenoh.Config.from_file(str(ROOT / "deploy/zenoh/router-tcp.json5"))
     assert json.loads(config.get_json("access_control/enabled")) is True
     assert json.loads(config.get_json("transport/auth/usrpwd/dictionary_file")) == (
         "/etc/avs/credentials.txt"

@@ -164,6 +164,9 @@ class TransportSettings(Settings):
         None, description="user name for the router's authentication (and its access control)"
     )
     password: SecretStr | None = Field(None, description="its password (never logged)")
+    tls_ca: Path | None = Field(
+        None, description="CA certificate that signed the router's (for tls/… endpoints)"
+    )
 
     @field_validator("robot")
     @classmethod

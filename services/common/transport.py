@@ -60,6 +60,9 @@ def zenoh_config(settings: TransportSettings) -> zenoh.Config:
             raise ValueError("a user needs a password (AVS_PASSWORD or --password)")
         auth = {"user": settings.user, "password": settings.password.get_secret_value()}
         config.insert_json5("transport/auth/usrpwd", json.dumps(auth))
+    if settings.tls_ca is not None:
+        ca = json.dumps(str(settings.tls_ca))
+        config.insert_json5("transport/link/tls/root_ca_certificate", ca)
     return config
 
 
