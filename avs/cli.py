@@ -16,11 +16,12 @@ from avs.commands import (
     run,
     schema,
     sim,
+    status,
     up,
 )
 from services.common.log import setup_logging
 
-COMMANDS = (run, explore, up, sim, perceive, fuse, gaze_experiment, echo, record, schema)
+COMMANDS = (run, explore, up, status, sim, perceive, fuse, gaze_experiment, echo, record, schema)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -48,13 +48,24 @@ class Supervisor:
         robot: str = "armar6",
         env: dict[str, str] | None = None,
         restart: bool = True,
+        scale: dict[str, int] | None = None,
     ) -> None:
+        """``scale``: instances per service (default one each; only scalable services take
+        more)."""
         self.endpoint = endpoint
         self.keys = Keys(robot)
         self.robot = robot
         self.extra_env = env or {}
         self.restart = restart
-        self.children = [Child(s, f"{s.name}-0") for s in services]
+        scale = scale or {}
+        for name, n in scale.items():
+            info = next((s for s in services if s.name == name), None)
+            if info is None or n < 1 or (n > 1 and not info.scalable):
+                raise ValueError(f"cannot run {n} instances of {name!r}: only started, scalable "
+                                 "services take more than one")  # fmt: skip
+        self.children = [
+            Child(s, f"{s.name}-{i}") for s in services for i in range(scale.get(s.name, 1))
+        ]
         self.router: zenoh.Session | None = None
         self._alive_sub = None
         self._changed = threading.Condition()

@@ -111,6 +111,44 @@ def test_up_runs_a_router_that_clients_reach_and_stops_on_sigint(procs, tmp_path
     assert up.wait(30) == 0
 
 
+@pytest.mark.timeout(180)
+def test_up_scales_a_service_and_status_lists_every_instance(procs, tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    up = procs.start(
+        [*AVS, "up", "--listen", endpoint, "--data-dir", str(tmp_path),
+         "--services", "sim,perception", "--scale", "perception=2"],
+        stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    ready = json.loads(up.stdout.readline())
+    assert sorted(c["instance"] for c in ready["services"]) == [
+        "perception-0", "perception-1", "sim-0",
+    ]  # fmt: skip
+    out = subprocess.run([*AVS, "status", "--json", "--connect", endpoint], capture_output=True,
+                         text=True, timeout=60)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    rows = [json.loads(line) for line in out.stdout.splitlines()]
+    assert sorted((r["service"], r["instance"]) for r in rows) == [
+        ("perception", "perception-0"), ("perception", "perception-1"), ("sim", "sim-0"),
+    ]  # fmt: skip
+    assert all(r["uptime_s"] > 0 for r in rows)
+    sim = next(r for r in rows if r["service"] == "sim")
+    assert sim["out"] > 100  # it has been publishing IMU samples
+    table = subprocess.run([*AVS, "status", "--connect", endpoint], capture_output=True,
+                           text=True, timeout=60)  # fmt: skip
+    assert "perception-1" in table.stdout and "uptime" in table.stdout
+    up.send_signal(signal.SIGINT)
+    assert up.wait(30) == 0
+
+
+def test_up_refuses_to_scale_a_service_that_does_not_scale(tmp_path):
+    out = subprocess.run(
+        [*AVS, "up", "--listen", f"tcp/127.0.0.1:{free_port()}", "--data-dir", str(tmp_path),
+         "--scale", "sim=2"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert out.returncode != 0 and "scalable" in out.stderr and "Traceback" not in out.stderr
+
+
 def test_up_refuses_a_busy_port_with_one_line(router):
     out = subprocess.run(
         [*AVS, "up", "--listen", router], capture_output=True, text=True, timeout=60

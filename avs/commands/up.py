@@ -60,7 +60,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--no-restart", action="store_true", help="do not restart a service that exits"
     )
+    parser.add_argument(
+        "--scale",
+        type=parse_scale,
+        default={},
+        metavar="NAME=N,…",
+        help="instances of scalable services, e.g. perception=3,nbv=2",
+    )
     parser.set_defaults(func=_up)
+
+
+def parse_scale(text: str) -> dict[str, int]:
+    scale = {}
+    for part in (p.strip() for p in text.split(",") if p.strip()):
+        name, _, n = part.partition("=")
+        if not n.isdigit() or int(n) < 1:
+            raise argparse.ArgumentTypeError(f"{part!r}: expected NAME=N with N ≥ 1")
+        scale[name.strip()] = int(n)
+    return scale
 
 
 def service_env(args: argparse.Namespace) -> dict[str, str]:
@@ -84,9 +101,13 @@ def chosen_services(names: str) -> list[ServiceInfo]:
 
 def _up(args: argparse.Namespace) -> int:
     services = chosen_services(args.services)
-    supervisor = Supervisor(
-        services, args.listen, args.robot, env=service_env(args), restart=not args.no_restart
-    )
+    try:
+        supervisor = Supervisor(
+            services, args.listen, args.robot, env=service_env(args),
+            restart=not args.no_restart, scale=args.scale,
+        )  # fmt: skip
+    except ValueError as e:
+        raise SystemExit(f"avs: {e}") from None
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
