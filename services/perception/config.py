@@ -20,3 +20,6 @@ class PerceptionSettings(ServiceSettings):
     stride: int = Field(2, ge=1, le=4, description="pixel stride of the organized cloud")
     max_pixels: int = Field(1280 * 960, gt=0, description="larger frames are dropped")
     seed: int = Field(0, description="seed of RANSAC")
+    queue: int = Field(
+        2, ge=1, description="frames this worker owns and has not begun, at most (older: stale)"
+    )

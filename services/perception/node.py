@@ -1,15 +1,22 @@
-"""The perception node: the newest RGB-D frame in, one SceneObservation out.
+"""The perception node: RGB-D frames in, one SceneObservation per frame out.
 
-Frames arrive on a latest-only input, so a slow step never builds a queue of stale frames.
+Workers share the stream: every instance sees every frame, and the one that owns it by
+rendezvous hashing of (camera, seq) over the live instances' liveliness tokens processes it
+(services/common/membership.py); the others skip it. An instance joining or leaving moves only
+the frames it wins or held. Each worker keeps at most ``queue`` of its frames waiting: when it
+falls behind, the oldest is dropped as stale, counted, so it never works on old frames.
 A frame without depth, or larger than ``max_pixels``, is dropped and counted; an empty or
-all-invalid frame gives an observation with no primitives.
+all-invalid frame gives an observation with no primitives. Observations carry the worker.
 """
 
 from __future__ import annotations
 
 import logging
+import threading
+from collections import deque
 
 from schemas import RgbdFrame
+from services.common.membership import Members
 from services.common.node import Node
 from services.perception.config import PerceptionSettings
 from services.perception.pipeline import Perception, PerceptionConfig, observation
@@ -32,7 +39,39 @@ class PerceptionNode:
         self.out = node.publisher(node.keys.observation())
         self.seq = 0
         self.key = node.keys.rgbd(settings.camera)
-        node.subscribe(self.key, RgbdFrame, self.on_frame, latest_only=True)
+        self.members = Members(node.session, node.keys.alive("perception"), node.instance)
+        self.pending: deque[RgbdFrame] = deque()
+        self.ready = threading.Condition()
+        self.skipped = 0
+        node.subscribe(self.key, RgbdFrame, self.on_arrival, name="on_arrival")
+        node._start_thread(self.work, "perception:work")
+
+    def on_arrival(self, frame: RgbdFrame) -> None:
+        """Keep the frames this worker owns; the others are another worker's."""
+        if not self.members.owns(f"{frame.camera}:{frame.seq}"):
+            self.skipped += 1
+            self.node.metrics.gauge("frames_of_others", self.skipped)
+            return
+        with self.ready:
+            if len(self.pending) >= self.settings.queue:
+                stale = self.pending.popleft()
+                self.node.drop("stale", self.key, f"frame {stale.seq} waited too long")
+            self.pending.append(frame)
+            self.ready.notify()
+
+    def work(self) -> None:
+        while not self.node.stopping:
+            with self.ready:
+                if not self.pending and not self.ready.wait(0.2):
+                    continue
+                frame = self.pending.popleft()
+            try:
+                self.on_frame(frame)
+            except Exception as e:  # a bad frame never stops the worker
+                self.node.drop(f"handler_error:{type(e).__name__}", self.key, repr(e))
+
+    def close(self) -> None:
+        self.members.close()
 
     def on_frame(self, frame: RgbdFrame) -> None:
         if frame.depth is None:
@@ -55,5 +94,7 @@ class PerceptionNode:
             observation(result, frame, self.seq, self.node.instance, c.depth_max, c.stride)
         )
         self.seq += 1
+        self.node.metrics.gauge("frames_done", self.seq)
+        self.node.metrics.gauge("workers", len(self.members.current()))
         self.node.metrics.gauge("primitives", len(result.primitives))
         self.node.metrics.gauge("total_ms", result.timings_ms["total"])

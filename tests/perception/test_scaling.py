@@ -1,0 +1,114 @@
+"""Perception workers sharing one RGB-D stream (rendezvous hashing over their liveliness
+tokens): every frame processed exactly once by three workers; a worker killed mid-stream
+loses at most the frames it held, and the others take over its share within a second."""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from schemas import Keys, SceneObservation, decode, encode
+from services.common.membership import owner
+from services.sim import capture
+from services.sim.render import CameraRenderer
+from services.sim.robots import ARMAR6
+from services.sim.world import World
+from tests.conftest import avs_env, liveliness_tokens, matched_publisher, wait_for
+
+KEYS = Keys()
+WORKERS = ("p-a", "p-b", "p-c")
+RATE = 30.0  # frames per second
+
+
+@pytest.fixture(scope="module")
+def small_frame():
+    world = World("tabletop_clutter", ARMAR6)
+    renderer = CameraRenderer(world.model, 320, 240)
+    T, stamp = capture.snapshot(world, renderer, "head_rgbd")
+    frame = capture.frame(world, renderer, "head_rgbd", T, stamp, 0, np.random.default_rng(0))
+    renderer.close()
+    return frame
+
+
+def start_workers(procs, client, router):
+    workers = {
+        w: procs.python(
+            ["-m", "services.perception", "--instance", w],
+            env=avs_env(router, AVS_PERCEPTION_QUEUE="16"),
+        )
+        for w in WORKERS
+    }
+    wanted = {KEYS.alive("perception", w) for w in WORKERS}
+    wait_for(lambda: wanted <= liveliness_tokens(client, KEYS.alive()), 60, "three workers")
+    time.sleep(0.5)  # each has seen the others' tokens
+    return workers
+
+
+def stream(client, frame, n: int, on_sent=None):
+    frames = matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60)
+    t0 = time.monotonic()
+    for i in range(n):
+        frames.put(encode(frame.model_copy(update={"seq": i})))
+        if on_sent is not None:
+            on_sent(i)
+        time.sleep(max(0.0, t0 + (i + 1) / RATE - time.monotonic()))
+
+
+def collect(client):
+    seen: list[tuple[int, str]] = []
+    lock = threading.Lock()
+
+    def on(sample):
+        obs = decode(sample.payload.to_bytes(), SceneObservation)
+        with lock:
+            seen.append((obs.frame_seq, obs.worker))
+
+    return seen, client.declare_subscriber(KEYS.observation(), on)
+
+
+@pytest.mark.timeout(240)
+def test_three_workers_process_every_frame_exactly_once(client, router, procs, small_frame):
+    start_workers(procs, client, router)
+    seen, sub = collect(client)
+    stream(client, small_frame, 300)
+    wait_for(lambda: len(seen) >= 300, 60, "300 observations")
+    time.sleep(1.0)  # nothing more comes
+    seqs = sorted(s for s, _ in seen)
+    assert seqs == list(range(300)), f"{len(seqs)} observations, {len(set(seqs))} distinct"
+    per_worker = {w: sum(1 for _, x in seen if x == w) for w in WORKERS}
+    assert all(n >= 60 for n in per_worker.values()), per_worker  # each its share
+    for seq, worker in seen:  # and the share is the rendezvous owner's
+        assert owner(f"head_rgbd:{seq}", WORKERS) == worker
+    sub.undeclare()
+
+
+@pytest.mark.timeout(240)
+def test_a_killed_worker_loses_at_most_what_it_held(client, router, procs, small_frame):
+    workers = start_workers(procs, client, router)
+    seen, sub = collect(client)
+    killed_at = []
+
+    def kill(i):
+        if i == 100:
+            workers["p-c"].send_signal(signal.SIGKILL)
+            killed_at.append(i)
+
+    stream(client, small_frame, 300, kill)
+    wait_for(lambda: len({s for s, _ in seen if s >= 290}) == 10, 60, "the last frames")
+    time.sleep(1.0)
+    seqs = [s for s, _ in seen]
+    assert len(seqs) == len(set(seqs)), "a frame processed twice"
+    missing = sorted(set(range(300)) - set(seqs))
+    # only frames p-c owned, from the ones it queued before it died to those sent in the
+    # second the others took to see its token go
+    assert all(owner(f"head_rgbd:{m}", WORKERS) == "p-c" for m in missing), missing
+    assert all(100 - 17 <= m <= 100 + RATE for m in missing), missing
+    late = {s: w for s, w in seen if s > 100 + RATE}
+    assert set(late) == set(range(int(100 + RATE) + 1, 300))  # p-c's share taken over
+    assert "p-c" not in late.values()
+    print(f"killed p-c at frame 100: {len(missing)} frames lost {missing}")
+    sub.undeclare()
