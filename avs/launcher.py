@@ -27,6 +27,13 @@ log = logging.getLogger("avs.up")
 MAX_RESTARTS = 3
 
 
+def threads_per_instance(instances: int) -> int:
+    """Compute threads for each of ``instances`` copies of a service on this host: the cores
+    shared out (one worker's numba kernels would otherwise take every core, and two would
+    fight over them)."""
+    return max(1, (os.cpu_count() or 1) // instances)
+
+
 @dataclass
 class Child:
     info: ServiceInfo
@@ -82,6 +89,9 @@ class Supervisor:
             AVS_INSTANCE=child.instance,
         )
         env.setdefault("MUJOCO_GL", "egl")
+        siblings = sum(1 for c in self.children if c.info.name == child.info.name)
+        if siblings > 1 and "NUMBA_NUM_THREADS" not in os.environ:
+            env["NUMBA_NUM_THREADS"] = str(threads_per_instance(siblings))
         env.update(self.extra_env)
         return env
 

@@ -115,6 +115,26 @@ def encode(message: Message) -> bytes:
     return b"".join(out)
 
 
+def peek(payload: bytes | bytearray | memoryview, *names: str, limit: int = 512) -> dict:
+    """The top-level fields ``names`` of a message read from its first ``limit`` bytes, without
+    decoding (or validating) the rest: a 2 MB frame's seq and camera in microseconds. Fields
+    not among the first few (or absent) are missing from the result."""
+    unpacker = msgpack.Unpacker(raw=False)
+    unpacker.feed(bytes(payload[:limit]))
+    found: dict = {}
+    try:
+        for _ in range(unpacker.read_map_header()):
+            key = unpacker.unpack()
+            value = unpacker.unpack()
+            if key in names:
+                found[key] = value
+                if len(found) == len(names):
+                    break
+    except (msgpack.OutOfData, ValueError, msgpack.ExtraData, msgpack.UnpackException):
+        pass
+    return found
+
+
 def _validation_text(schema: str, error: ValidationError) -> str:
     parts = []
     for e in error.errors(include_url=False)[:3]:

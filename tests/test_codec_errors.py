@@ -183,3 +183,19 @@ def test_expected_type():
         decode(encode(_imu()), RgbdFrame)
     assert info.value.kind == "unexpected_schema"
     assert decode(encode(_imu()), ImuSample) == _imu()
+
+
+def test_peek_reads_a_frames_header_without_decoding_it():
+    import numpy as np
+
+    from schemas import CameraIntrinsics, RgbdFrame
+    from schemas.codec import peek
+
+    frame = RgbdFrame(seq=7, stamp=1.5, camera="head_rgbd",
+                      intrinsics=CameraIntrinsics.from_fov(640, 480, 45.0),
+                      depth=np.ones((480, 640), np.float32), T_world_camera=np.eye(4))  # fmt: skip
+    payload = encode(frame)
+    assert peek(payload, "camera", "seq") == {"camera": "head_rgbd", "seq": 7}
+    assert peek(payload, "seq", "nothing") == {"seq": 7}  # what is not there is left out
+    assert peek(b"\xc1 not msgpack", "seq") == {}
+    assert peek(payload[:20], "camera", "seq") == {}  # cut before: nothing, no error

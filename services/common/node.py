@@ -135,19 +135,24 @@ class Node:
         latest_only: bool = False,
         name: str | None = None,
         with_key: bool = False,
+        accept: Callable[[bytes], bool] | None = None,
     ) -> None:
         """Call ``handler`` with every valid ``message_type`` published on ``key`` (and the
         sample's key, with ``with_key``).
 
         With ``latest_only`` the handler runs on a thread of its own and always gets the newest
-        sample: a slow handler skips stale ones instead of queueing them.
+        sample: a slow handler skips stale ones instead of queueing them. ``accept`` sees the
+        raw payload first (e.g. ``codec.peek``): a sample it refuses is not decoded at all.
         """
         name = name or getattr(handler, "__name__", key)
 
         def on_sample(sample: zenoh.Sample) -> None:
             k = str(sample.key_expr)
             self.metrics.count_in(k)
-            message = self._decode(k, sample.payload.to_bytes(), message_type)
+            payload = sample.payload.to_bytes()
+            if accept is not None and not accept(payload):
+                return
+            message = self._decode(k, payload, message_type)
             if message is not None:
                 self._handle(name, handler, message, k, with_key)
 

@@ -16,6 +16,7 @@ import threading
 from collections import deque
 
 from schemas import RgbdFrame
+from schemas.codec import peek
 from services.common.membership import Members
 from services.common.node import Node
 from services.perception.config import PerceptionSettings
@@ -43,14 +44,22 @@ class PerceptionNode:
         self.pending: deque[RgbdFrame] = deque()
         self.ready = threading.Condition()
         self.skipped = 0
-        node.subscribe(self.key, RgbdFrame, self.on_arrival, name="on_arrival")
+        node.subscribe(self.key, RgbdFrame, self.on_arrival, name="on_arrival", accept=self.mine)
         node._start_thread(self.work, "perception:work")
 
+    def mine(self, payload: bytes) -> bool:
+        """Whether this worker owns the frame, from its first bytes (another worker's frame is
+        not even decoded). A frame whose header cannot be read is decoded, and judged there."""
+        head = peek(payload, "camera", "seq")
+        if len(head) < 2 or self.members.owns(f"{head['camera']}:{head['seq']}"):
+            return True
+        self.skipped += 1
+        self.node.metrics.gauge("frames_of_others", self.skipped)
+        return False
+
     def on_arrival(self, frame: RgbdFrame) -> None:
-        """Keep the frames this worker owns; the others are another worker's."""
+        """Queue a frame of this worker's."""
         if not self.members.owns(f"{frame.camera}:{frame.seq}"):
-            self.skipped += 1
-            self.node.metrics.gauge("frames_of_others", self.skipped)
             return
         with self.ready:
             if len(self.pending) >= self.settings.queue:
