@@ -99,3 +99,35 @@ def test_every_service_logs_in_with_its_own_identity():
         env = service["environment"]
         assert env["AVS_USER"] == name, name
         assert env["AVS_PASSWORD"].startswith(f"${{AVS_PASSWORD_{name.upper()}:?"), name
+
+
+def test_every_service_has_a_health_check_on_its_liveliness():
+    for name, service in _services().items():
+        check = service["healthcheck"]
+        assert check["test"] == ["CMD", "python", "-m", "services.common.health", name], name
+        assert check["interval"] and check["retries"] >= 1
+
+
+def test_the_health_check_sees_this_hosts_instance(router):
+    """services.common.health against a live token named like a default instance
+    (<hostname>-<pid>): exit 0 for that service, 1 for another."""
+    import socket
+    import subprocess
+    import sys
+
+    from schemas.keys import Keys
+    from tests.conftest import avs_env, session_config
+
+    instance = f"{socket.gethostname()}-4242".replace("/", "-")
+    with zenoh.open(session_config("client", connect=[router])) as session:
+        token = session.liveliness().declare_token(Keys().alive("perception", instance))
+
+        def check(service: str) -> int:
+            return subprocess.run(
+                [sys.executable, "-m", "services.common.health", service],
+                env=avs_env(router), cwd=ROOT, capture_output=True, timeout=60,
+            ).returncode  # fmt: skip
+
+        assert check("perception") == 0
+        assert check("nbv") == 1
+        token.undeclare()
