@@ -62,6 +62,8 @@ class EpisodeConfig:
     voxel: float = 0.01
     ig_measure: str = "volume"  # or "rays": Eq. 4.6 as printed (services/nbv/README.md)
     out: Path = Path("runs/explore")
+    host: str = "127.0.0.1"  # the address the router listens on
+    launch: dict[str, list[str]] = field(default_factory=dict)  # command prefix per service
     ready_timeout: float = 120.0
 
 
@@ -106,9 +108,9 @@ class EpisodeResult:
         return asdict(self)
 
 
-def _free_port() -> int:
+def _free_port(host: str = "127.0.0.1") -> int:
     with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
+        s.bind((host, 0))
         return s.getsockname()[1]
 
 
@@ -266,12 +268,12 @@ class Episode:
         c.out.mkdir(parents=True, exist_ok=True)
         data_dir = c.out / "scene_memory"
         shutil.rmtree(data_dir, ignore_errors=True)
-        endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        endpoint = f"tcp/{c.host}:{_free_port(c.host)}"
         services = [BY_NAME[n] for n in EPISODE_SERVICES]
         supervisor = Supervisor(
             services, endpoint, c.robot,
             env=self._env(data_dir, roi_lo, roi_hi, centre, pois, workspace),
-            restart=False,
+            restart=False, launch=c.launch,
         )  # fmt: skip
         result = EpisodeResult(
             c.scene, c.strategy, c.sampling, c.fusion, c.seed,

@@ -56,9 +56,12 @@ class Supervisor:
         env: dict[str, str] | None = None,
         restart: bool = True,
         scale: dict[str, int] | None = None,
+        launch: dict[str, list[str]] | None = None,
     ) -> None:
         """``scale``: instances per service (default one each; only scalable services take
-        more)."""
+        more). ``launch``: a command prefix per service, e.g. ``ip netns exec HOST`` to run it
+        in a network namespace of its own (tests/test_multihost.py)."""
+        self.launch = launch or {}
         self.endpoint = endpoint
         self.keys = Keys(robot)
         self.robot = robot
@@ -107,8 +110,9 @@ class Supervisor:
             self._changed.notify_all()
 
     def _spawn(self, child: Child) -> None:
+        prefix = self.launch.get(child.info.name, [])
         child.process = subprocess.Popen(
-            [sys.executable, *child.info.argv()], env=self.child_env(child)
+            [*prefix, sys.executable, *child.info.argv()], env=self.child_env(child)
         )
         child.started_at = time.monotonic()
         log.info("started %s (pid %d)", child.instance, child.process.pid)
