@@ -82,7 +82,12 @@ def access_control() -> dict:
         rules += [
             _rule(own[0], ["ingress"], ["put", "delete"], _keys(put)),
             _rule(own[1], ["ingress"], ["declare_queryable"], _keys(serve)),
-            _rule(own[2], ["ingress"], ["liveliness_token"], _keys([f"alive/{name}/**"])),
+            _rule(
+                own[2],
+                ["ingress"],
+                ["liveliness_token"],
+                _keys([f"alive/{name}/**", f"alive/{name}_standby/**"]),
+            ),
         ]
         subjects.append({"id": name, "usernames": [name]})
         policies.append({"id": name, "rules": ["receive", "watch", "ask", "answer", *own],

@@ -25,6 +25,7 @@ from schemas import (
     encode,
 )
 from services.common.node import Node
+from services.common.standby import wait_for_turn
 from services.scene_memory.config import SceneMemorySettings
 from services.scene_memory.fusion import FusionConfig
 from services.scene_memory.memory import MemoryConfig, SceneMemory, registered_view
@@ -49,6 +50,11 @@ class SceneMemoryNode:
     def __init__(self, node: Node, settings: SceneMemorySettings) -> None:
         self.node, self.settings = node, settings
         self.lock = threading.Lock()
+        # one writer: wait on standby while another instance is active, then restore what
+        # it wrote to the shared data directory
+        if not wait_for_turn(node.session, node.keys, "scene_memory", node.instance,
+                             lambda: node.stopping):  # fmt: skip
+            raise SystemExit(0)  # stopped while standing by
         self.store = Store(settings.data_dir)
         self.memory, self.n = self._restore()
         k = node.keys

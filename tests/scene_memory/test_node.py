@@ -35,7 +35,7 @@ from services.sim import capture
 from services.sim.render import CameraRenderer
 from services.sim.robots import ARMAR6
 from services.sim.world import World
-from tests.conftest import avs_env, matched_publisher, wait_for
+from tests.conftest import avs_env, liveliness_tokens, matched_publisher, wait_for
 
 KEYS = Keys()
 BOUNDS_MIN, BOUNDS_MAX = [-0.5, -1.5, -0.05], [2.5, 1.5, 1.6]
@@ -115,9 +115,9 @@ class Client:
         return self.stats().seq
 
 
-def start(procs, router, data_dir, snapshot_every: int):
+def start(procs, router, data_dir, snapshot_every: int, instance: str = "m0"):
     args = [
-        "-m", "services.scene_memory", "--instance", "m0", "--data-dir", str(data_dir),
+        "-m", "services.scene_memory", "--instance", instance, "--data-dir", str(data_dir),
         "--voxel", str(VOXEL), "--snapshot-every", str(snapshot_every),
         f"--bounds-min={','.join(map(str, BOUNDS_MIN))}",
         f"--bounds-max={','.join(map(str, BOUNDS_MAX))}",
@@ -199,6 +199,45 @@ def test_fuses_serves_and_survives_kill_9(client, router, procs, tmp_path, updat
     assert (s.unknown, s.free, s.occupied) == final.occupancy.counts()
     metrics = c.get(KEYS.metrics("scene_memory", "m0"), ServiceMetrics)
     assert metrics.dropped == {}
+
+
+@pytest.mark.timeout(300)
+def test_a_standby_takes_over_within_2_s_when_the_active_is_killed(
+    client, router, procs, tmp_path, updates
+):
+    """Two instances on one data directory: one active, one standing by (no inputs, no
+    queryables, its own token). kill -9 the active: the standby restores what was journaled
+    and serves memory/scene within 2 s, nothing lost, and the run goes on to the end."""
+    c = Client(client)
+    active = start(procs, router, tmp_path, 4, "m-a")
+    wait_for(lambda: KEYS.alive("scene_memory", "m-a") in liveliness_tokens(client, KEYS.alive()),
+             60, "the active instance")  # fmt: skip
+    start(procs, router, tmp_path, 4, "m-b")
+    standby = KEYS.alive("scene_memory_standby", "m-b")
+    wait_for(lambda: standby in liveliness_tokens(client, KEYS.alive()), 60, "the standby")
+    frames = matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60)
+    observations = matched_publisher(client, KEYS.observation(), timeout=30)
+    pub = {"frame": frames, "observation": observations}
+
+    def send(i: int) -> None:
+        kind, message = updates[i]
+        pub[kind].put(encode(message))
+        wait_for(lambda: c.applied() == i + 1, 60, f"update {i + 1}")
+
+    for i in range(6):
+        send(i)
+    before = summary(c.scene())
+    active.send_signal(signal.SIGKILL)
+    t0 = time.monotonic()
+    wait_for(lambda: _answers(c) and c.applied() == 6, 10, "the standby to serve")
+    took = time.monotonic() - t0
+    print(f"the standby served memory/scene {took:.2f} s after the kill")
+    assert took <= 2.0, took
+    assert summary(c.scene()) == before  # nothing lost
+    assert KEYS.alive("scene_memory", "m-b") in liveliness_tokens(client, KEYS.alive())
+    for i in range(6, len(updates)):
+        send(i)
+    assert summary(c.scene()) == summary(reference(updates).scene())
 
 
 def _answers(c: Client) -> bool:

@@ -1,0 +1,60 @@
+"""One active instance, the others on standby (a writer such as the scene memory): an instance
+declares ``alive/<service>_standby/<instance>`` and waits while an ``alive/<service>/*`` token
+is live; when none is (at start, or the active one's token went with its process), the
+rendezvous owner among the standby instances takes over (services/common/membership.py), the
+others go on waiting. The caller then restores its state and declares the service's token."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import zenoh
+
+from schemas.keys import Keys
+from services.common.membership import owner
+
+log = logging.getLogger("avs.standby")
+
+
+def wait_for_turn(
+    session: zenoh.Session,
+    keys: Keys,
+    service: str,
+    instance: str,
+    stopping: Callable[[], bool],
+    discover_s: float = 0.5,
+) -> bool:
+    """Block until this instance is to be the active one (True), or ``stopping()`` (False)."""
+    standby = f"{service}_standby"
+    token = session.liveliness().declare_token(keys.alive(standby, instance))
+    changed = threading.Event()
+    subs = [
+        session.liveliness().declare_subscriber(keys.alive(s), lambda _s: changed.set())
+        for s in (service, standby)
+    ]
+
+    def live(s: str) -> list[str]:
+        replies = session.liveliness().get(keys.alive(s), timeout=2.0)
+        return sorted(str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok)
+
+    try:
+        time.sleep(discover_s)  # let instances started together see each other
+        said = False
+        while not stopping():
+            active, waiting = live(service), live(standby)
+            if not active and owner("active", [*waiting, instance]) == instance:
+                log.info("taking over as the active %s", service, extra={"standby": waiting})
+                return True
+            if not said:
+                log.info("standing by", extra={"active": active, "standby": waiting})
+                said = True
+            changed.wait(0.5)
+            changed.clear()
+        return False
+    finally:
+        for sub in subs:
+            sub.undeclare()
+        token.undeclare()
