@@ -63,6 +63,7 @@ class EpisodeConfig:
     ig_measure: str = "volume"  # or "rays": Eq. 4.6 as printed (services/nbv/README.md)
     out: Path = Path("runs/explore")
     host: str = "127.0.0.1"  # the address the router listens on
+    scale: dict[str, int] = field(default_factory=dict)  # instances per scalable service
     launch: dict[str, list[str]] = field(default_factory=dict)  # command prefix per service
     ready_timeout: float = 120.0
 
@@ -84,6 +85,7 @@ class ViewRecord:
     reached: bool = True  # False: the platform got stuck on the way; the view is from there
     goal: list[float] = field(default_factory=list)  # the planned platform pose (Eq. 4.2, 4.3)
     trajectory: list[list[float]] = field(default_factory=list)  # (x, y) driven, every 0.1 s
+    planning_workers: int = 1  # nbv instances that evaluated the candidates
 
 
 @dataclass
@@ -273,7 +275,7 @@ class Episode:
         supervisor = Supervisor(
             services, endpoint, c.robot,
             env=self._env(data_dir, roi_lo, roi_hi, centre, pois, workspace),
-            restart=False, launch=c.launch,
+            restart=False, launch=c.launch, scale=c.scale,
         )  # fmt: skip
         result = EpisodeResult(
             c.scene, c.strategy, c.sampling, c.fusion, c.seed,
@@ -346,7 +348,7 @@ class Episode:
                 view, support.precision, support.recall, support.f1, int(stats.unknown),
                 cost, accumulated, scores.inlier_index, scores.overlapping_index, planning_s,
                 pose, float(nbv.information_gain), reached, [nbv.x, nbv.y, nbv.yaw],
-                trajectory,
+                trajectory, nbv.workers,
             )  # fmt: skip
             result.views.append(record)
             result.final_support_edges = [list(e) for e in support.edges]

@@ -11,7 +11,7 @@ from schemas.commands import BaseGoal, BaseVelocity, HeadCommand
 from schemas.gaze import EgoSphereSnapshot, GazeTarget
 from schemas.keys import DEFAULT_ROBOT, KEY_TABLE, Keys, KeySpec, spec_for
 from schemas.occupancy import BoxQuery, OccupancySlice, OccupancyStats
-from schemas.planning import NextBestView, PlanRequest, ViewCandidates
+from schemas.planning import GainRequest, Gains, NextBestView, PlanRequest, ViewCandidates
 from schemas.runtime import QueryError, ServiceMetrics, TimingSummary
 from schemas.scene import (
     Affordance,
@@ -46,6 +46,8 @@ __all__ = [
     "CodecError",
     "CylinderModel",
     "EgoSphereSnapshot",
+    "GainRequest",
+    "Gains",
     "GazeTarget",
     "GroundTruth",
     "GroundTruthObject",

@@ -59,6 +59,7 @@ KEY_TABLE: tuple[KeySpec, ...] = (
     KeySpec("nbv/candidates", ("ViewCandidates",), "stream", "nbv", "block", "data", False, "per planning step"),
     KeySpec("nbv/next_view", ("NextBestView",), "stream", "nbv", "block", "interactive_low", False, "per planning step"),
     KeySpec("nbv/plan", ("PlanRequest", "NextBestView"), "queryable", "nbv", note="queryable"),
+    KeySpec("nbv/gain/*", ("GainRequest", "Gains"), "queryable", "nbv", note="queryable: a share of the candidates"),
     KeySpec("gaze/target", ("GazeTarget",), "command", "nbv", "block", "interactive_high", False, "on demand"),
     KeySpec("gaze/egosphere", ("EgoSphereSnapshot",), "stream", "gaze", "drop", "data_low", False, "2-10 Hz"),
     KeySpec("sim/ground_truth", ("GroundTruthQuery", "GroundTruth"), "queryable", "sim", note="queryable"),
@@ -130,6 +131,9 @@ class Keys:
 
     def plan(self) -> str:
         return self.key("nbv/plan")
+
+    def gain(self, instance: str = "*") -> str:
+        return self.key(f"nbv/gain/{self._chunk_or_star(instance)}")
 
     def gaze_target(self) -> str:
         return self.key("gaze/target")

@@ -9,7 +9,7 @@ from pydantic import Field
 
 from schemas.arrays import Array, Dim
 from schemas.base import Message, Stamped
-from schemas.types import Finite, Pose, Rigid, Vec3
+from schemas.types import Finite, Pose, Poses, Rigid, Vec3
 
 
 def _column(dtype: str = "float64", description: str = "") -> Array:
@@ -54,6 +54,22 @@ class NextBestView(Stamped):
     utility: float
     terminate: bool = False
     reason: Literal["", "quality", "max_views", "no_candidates"] = ""
+    workers: int = Field(1, ge=1, description="nbv instances that evaluated the candidates")
+
+
+class GainRequest(Message):
+    """A request on ``nbv/gain/<instance>``: the coarse information gain (every n-th ray, the
+    planner's measure) of these views, on the worker's own copy of the current map: one share
+    of a planning step's candidates (fan-out over the live nbv instances)."""
+
+    views: Poses
+
+
+class Gains(Message):
+    """The reply: one gain per requested view, and who computed them."""
+
+    gains: Annotated[np.ndarray, Array("float64", ("n",)), Finite()]
+    worker: str
 
 
 class PlanRequest(Message):

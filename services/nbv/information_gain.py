@@ -12,6 +12,7 @@ rays (3D DDA) and crosses such a cube in one step; (view, ray chunk) pairs in pa
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import pairwise
 
@@ -363,10 +364,12 @@ def hierarchical(
     best_k: int = 3,
     box: tuple[np.ndarray, np.ndarray] | None = None,
     measure: str = "rays",
+    coarse: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(IG of every view, the indices of the best k, whose IG is then from every ray).
     ``measure``: "rays" (Eq. 4.6: the coarse IG scaled by ``every`` so that both are on one
-    scale) or "volume" (see ``information_gain``)."""
+    scale) or "volume" (see ``information_gain``). ``coarse``: who computes the every-n-th-ray
+    gains of all views (e.g. shares of them on other nbv workers), same measure and scale."""
     if measure not in ("rays", "volume"):
         raise ValueError(f"unknown IG measure {measure!r}: rays or volume")
     skip = SkipMap.build(states, origin, voxel, box)
@@ -380,7 +383,7 @@ def hierarchical(
         )
         return g.astype(np.float64) * (n if measure == "rays" else 1)
 
-    gains = gain(poses, every)
+    gains = gain(poses, every) if coarse is None else np.asarray(coarse(poses), np.float64)
     if best_k <= 0 or not len(poses):
         return gains, np.zeros(0, int)
     best = np.argsort(-gains, kind="stable")[: min(best_k, len(poses))]

@@ -15,6 +15,8 @@ from schemas import (
     BaseGoal,
     BasePose,
     BoxQuery,
+    GainRequest,
+    Gains,
     HeadCommand,
     NextBestView,
     OccupancySlice,
@@ -22,6 +24,7 @@ from schemas import (
     SceneModel,
     ViewCandidates,
 )
+from services.common.membership import Members
 from services.common.node import Node
 from services.common.robots import robot_mjcf
 from services.nbv.config import NbvSettings
@@ -68,7 +71,63 @@ class NbvNode:
         self.out_next = node.publisher(k.next_view())
         self.out_base = node.publisher(k.cmd_base())
         self.out_head = node.publisher(k.cmd_head())
+        # workers: the rendezvous owner of the plan queries answers them and fans the
+        # candidates' coarse gains out to every live nbv instance (nbv/gain/<instance>)
+        self.members = Members(node.session, k.alive("nbv"), node.instance)
+        self.planner.coarse_gains = self.fan_out
+        self.workers = 1
         node.serve(k.plan(), self.on_plan, PlanRequest)
+        node.serve(k.gain(node.instance), self.on_gain, GainRequest)
+
+    def close(self) -> None:
+        self.members.close()
+
+    def on_gain(self, request: GainRequest | None) -> Gains:
+        """Coarse gains of a share of another instance's candidates, on this one's map."""
+        views = request.views if request is not None else np.zeros((0, 4, 4))
+        piece = self._map()
+        gains = self.planner.coarse(piece.states, piece.origin, piece.voxel_size, views)
+        return Gains(gains=gains, worker=self.node.instance)
+
+    def fan_out(self, poses: np.ndarray) -> np.ndarray:
+        """The coarse gains of every candidate, in shares over the live nbv instances (this
+        one included); a share whose worker does not answer is computed here."""
+        workers = self.members.current()
+        shares = np.array_split(np.arange(len(poses)), len(workers))
+        gains = np.zeros(len(poses))
+        answers: dict[int, np.ndarray] = {}
+
+        def ask(i: int, worker: str) -> None:
+            try:
+                request = GainRequest(views=poses[shares[i]])
+                replies = self.node.query(self.node.keys.gain(worker), request, Gains, 30)
+            except Exception as e:  # the share is computed here instead
+                log.warning("worker %s did not answer: %r", worker, e)
+                return
+            if replies and len(replies[0].gains) == len(shares[i]):
+                answers[i] = replies[0].gains
+
+        threads = [threading.Thread(target=ask, args=(i, w)) for i, w in enumerate(workers)
+                   if w != self.node.instance and len(shares[i])]  # fmt: skip
+        for t in threads:
+            t.start()
+        mine, piece = workers.index(self.node.instance), self._piece
+
+        def here(i: int) -> np.ndarray:
+            return self.planner.coarse(
+                piece.states, piece.origin, piece.voxel_size, poses[shares[i]]
+            )
+
+        answers[mine] = here(mine)  # meanwhile
+        for t in threads:
+            t.join()
+        self.workers = len(answers)  # this one and those that answered
+        for i in range(len(workers)):
+            if i not in answers:
+                answers[i] = here(i)
+        for i, idx in enumerate(shares):
+            gains[idx] = answers[i]
+        return gains
 
     def on_base(self, pose: BasePose) -> None:
         self.base = pose
@@ -117,10 +176,13 @@ class NbvNode:
             )
         )
 
-    def on_plan(self, request: PlanRequest | None) -> NextBestView:
+    def on_plan(self, request: PlanRequest | None) -> list[NextBestView]:
+        """One instance answers (the rendezvous owner of the plan among the live ones)."""
+        if not self.members.owns("plan"):
+            return []
         request = request or PlanRequest()
         with self.lock:
-            return self._plan(request)
+            return [self._plan(request)]
 
     def _reply(self, step: int, view: np.ndarray, base, joints: dict[str, float], target,
                **scores) -> NextBestView:  # fmt: skip
@@ -144,7 +206,7 @@ class NbvNode:
                 self._head(joints, step)
             scores = dict(information_gain=0.0, cost=0.0, utility=0.0)
             return self._reply(step, T, current, joints, centre, **scores)
-        piece = self._map()
+        piece = self._piece = self._map()
         scene = None
         if self.s.sampling == "topdown":  # the only sampling that reads the scene graph
             (scene,) = self.node.query(self.node.keys.scene(), None, SceneModel, 30) or [None]
@@ -176,6 +238,7 @@ class NbvNode:
             step, c.poses[b], c.base[b], joints, c.targets[b],
             information_gain=float(result.gain[b]), cost=float(result.cost[b]),
             utility=float(result.utility[b]), terminate=result.terminate, reason=result.reason,
+            workers=self.workers,
         )  # fmt: skip
         if request.execute and not result.terminate:
             path = result.path

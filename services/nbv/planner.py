@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -86,6 +87,8 @@ class Planner:
         self.rng = np.random.default_rng(config.seed)
         seed_ompl(config.seed)
         self.first_gain: float | None = None  # the best predicted gain of the first step
+        # who computes the coarse gains of a step's candidates (the node fans them out)
+        self.coarse_gains: Callable[[np.ndarray], np.ndarray] | None = None
 
     def sample(self, centre, scene: SceneModel | None, visited: np.ndarray, occupancy):
         """Sphere points (relative to the centre) and their saliency."""
@@ -175,6 +178,16 @@ class Planner:
             cands.saliency[keep],
         )
 
+    def coarse(self, states, origin, voxel, poses: np.ndarray) -> np.ndarray:
+        """The every-n-th-ray gains of ``poses`` on this map (a share of a step, for another
+        planner that fans its candidates out)."""
+        c = self.config
+        gains, _ = ig.hierarchical(
+            states, origin, voxel, poses, c.intrinsics, c.max_range, c.every, 0, c.roi,
+            c.ig_measure,
+        )  # fmt: skip
+        return gains
+
     def plan(
         self,
         centres: np.ndarray,
@@ -195,7 +208,7 @@ class Planner:
         t1 = time.perf_counter()
         gain, _ = ig.hierarchical(
             states, origin, voxel, cands.poses, c.intrinsics, c.max_range, c.every, c.best_k,
-            c.roi, c.ig_measure,
+            c.roi, c.ig_measure, self.coarse_gains,
         )  # fmt: skip
         times["information_gain_ms"] = (time.perf_counter() - t1) * 1e3
         t2 = time.perf_counter()

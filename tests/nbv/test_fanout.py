@@ -1,0 +1,24 @@
+"""Planning with two nbv instances: the candidates' information gain is computed in shares by
+both (nbv/gain/<instance>), one answers the plan, and the episode takes the same views as
+with one instance."""
+
+from __future__ import annotations
+
+import pytest
+
+from avs.explore import Episode, EpisodeConfig
+
+
+@pytest.mark.timeout(600)
+def test_two_nbv_workers_choose_the_views_one_chooses(tmp_path):
+    runs = {}
+    for n in (1, 2):
+        config = EpisodeConfig(scene="tabletop_occluded", views=3, voxel=0.02,
+                               out=tmp_path / f"nbv{n}", scale={"nbv": n})  # fmt: skip
+        runs[n] = Episode(config).run().to_json()["views"]
+    one, two = runs[1], runs[2]
+    assert len(one) == len(two) >= 2
+    for a, b in zip(one[1:], two[1:], strict=True):  # view 0 is the start view
+        assert a["base"] == pytest.approx(b["base"], abs=1e-6)
+        assert a["information_gain"] == pytest.approx(b["information_gain"], rel=1e-9)
+        assert a["planning_workers"] == 1 and b["planning_workers"] == 2
