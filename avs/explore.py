@@ -207,12 +207,19 @@ class Episode:
         }
 
     def _query(self, session, key: str, request, schema, timeout: float = 60.0):
+        """The first reply on ``key``; asked again while nobody answers (a scene memory
+        taking over from one that died), up to ``timeout``."""
         payload = encode(request) if request is not None else None
-        for reply in session.get(key, payload=payload, timeout=timeout):
-            if reply.ok is not None:
-                return decode(reply.ok.payload.to_bytes(), schema)
-            raise RuntimeError(f"{key}: {reply.err.payload.to_bytes()[:300]!r}")
-        raise TimeoutError(f"no reply on {key}")
+        deadline = time.monotonic() + timeout
+        while True:
+            left = max(0.1, deadline - time.monotonic())
+            for reply in session.get(key, payload=payload, timeout=left):
+                if reply.ok is not None:
+                    return decode(reply.ok.payload.to_bytes(), schema)
+                raise RuntimeError(f"{key}: {reply.err.payload.to_bytes()[:300]!r}")
+            if time.monotonic() >= deadline:
+                raise TimeoutError(f"no reply on {key}")
+            time.sleep(0.1)
 
     def _sim(self, session, **kw) -> SimStatus:
         status = self._query(session, self.keys.sim_control(), SimControl(**kw), SimStatus)
@@ -282,6 +289,7 @@ class Episode:
             roi=[list(map(float, roi_lo)), list(map(float, roi_hi))],
             centre=list(map(float, centre)),
         )  # fmt: skip
+        self.supervisor = supervisor
         supervisor.start()
         try:
             if not supervisor.wait_ready(c.ready_timeout):

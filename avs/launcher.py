@@ -41,6 +41,8 @@ class Child:
     process: subprocess.Popen | None = None
     restarts: int = 0
     alive: bool = False
+    active: bool = False  # its service's token is up
+    standing_by: bool = False  # its standby token is up (services/common/standby.py)
     failed: bool = False
     started_at: float = field(default_factory=time.monotonic)
 
@@ -103,10 +105,15 @@ class Supervisor:
         if len(parts) != 5:
             return
         alive = sample.kind == zenoh.SampleKind.PUT
+        service = parts[3].removesuffix("_standby")  # a standby instance is up, too
         with self._changed:
             for child in self.children:
-                if child.info.name == parts[3] and child.instance == parts[4]:
-                    child.alive = alive
+                if child.info.name == service and child.instance == parts[4]:
+                    if service == parts[3]:
+                        child.active = alive
+                    else:
+                        child.standing_by = alive
+                    child.alive = child.active or child.standing_by
             self._changed.notify_all()
 
     def _spawn(self, child: Child) -> None:

@@ -2,7 +2,9 @@
 declares ``alive/<service>_standby/<instance>`` and waits while an ``alive/<service>/*`` token
 is live; when none is (at start, or the active one's token went with its process), the
 rendezvous owner among the standby instances takes over (services/common/membership.py), the
-others go on waiting. The caller then restores its state and declares the service's token."""
+others go on waiting. The caller then restores its state, declares the service's token, and
+only then undeclares the standby token it was handed (so that no instance ever sees neither
+and takes over too)."""
 
 from __future__ import annotations
 
@@ -26,8 +28,9 @@ def wait_for_turn(
     instance: str,
     stopping: Callable[[], bool],
     discover_s: float = 0.5,
-) -> bool:
-    """Block until this instance is to be the active one (True), or ``stopping()`` (False)."""
+) -> zenoh.LivelinessToken | None:
+    """Block until this instance is to be the active one (its standby token, to undeclare
+    once the service's is declared), or ``stopping()`` (None)."""
     standby = f"{service}_standby"
     token = session.liveliness().declare_token(keys.alive(standby, instance))
     changed = threading.Event()
@@ -47,14 +50,14 @@ def wait_for_turn(
             active, waiting = live(service), live(standby)
             if not active and owner("active", [*waiting, instance]) == instance:
                 log.info("taking over as the active %s", service, extra={"standby": waiting})
-                return True
+                return token
             if not said:
                 log.info("standing by", extra={"active": active, "standby": waiting})
                 said = True
             changed.wait(0.5)
             changed.clear()
-        return False
+        token.undeclare()
+        return None
     finally:
         for sub in subs:
             sub.undeclare()
-        token.undeclare()

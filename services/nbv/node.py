@@ -141,12 +141,20 @@ class NbvNode:
         return (self.base.x, self.base.y, self.base.yaw)
 
     def _map(self) -> OccupancySlice:
+        """The occupancy map from the scene memory; asked again for a while if none answers
+        (a standby taking over from one that died)."""
         lo = np.array(self.s.map_min) if self.s.map_min else np.full(3, -1e3)
         hi = np.array(self.s.map_max) if self.s.map_max else np.full(3, 1e3)
-        (piece,) = self.node.query(
-            self.node.keys.occupancy("slice"), BoxQuery(box_min=lo, box_max=hi), OccupancySlice, 30
-        )
-        return piece
+        request = BoxQuery(box_min=lo, box_max=hi)
+        deadline = time.monotonic() + 30
+        while True:
+            pieces = self.node.query(self.node.keys.occupancy("slice"), request, OccupancySlice, 30)
+            if pieces or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
+        if not pieces:
+            raise RuntimeError("no scene memory answers memory/occupancy/slice")
+        return pieces[0]
 
     def centres(self, piece: OccupancySlice | None) -> np.ndarray:
         """The view spheres' centres (m, 3): the settings' (a scene's points of interest), or

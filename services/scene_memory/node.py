@@ -52,8 +52,9 @@ class SceneMemoryNode:
         self.lock = threading.Lock()
         # one writer: wait on standby while another instance is active, then restore what
         # it wrote to the shared data directory
-        if not wait_for_turn(node.session, node.keys, "scene_memory", node.instance,
-                             lambda: node.stopping):  # fmt: skip
+        standby = wait_for_turn(node.session, node.keys, "scene_memory", node.instance,
+                                lambda: node.stopping)  # fmt: skip
+        if standby is None:
             raise SystemExit(0)  # stopped while standing by
         self.store = Store(settings.data_dir)
         self.memory, self.n = self._restore()
@@ -69,6 +70,8 @@ class SceneMemoryNode:
         node.serve(k.occupancy("stats"), self.on_stats, BoxQuery)
         node.serve(k.occupancy("slice"), self.on_slice, BoxQuery)
         node.serve(k.cloud(), lambda _r: self.cloud())
+        node.announce()  # active now: the service's token first, then the standby one goes
+        standby.undeclare()
 
     def _restore(self) -> tuple[SceneMemory, int]:
         state, n, records = self.store.load()
