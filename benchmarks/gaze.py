@@ -29,7 +29,7 @@ import msgpack  # noqa: E402
 import zenoh  # noqa: E402
 
 from avs.router import open_router  # noqa: E402
-from benchmarks.sim import free_endpoint  # noqa: E402
+from benchmarks._loopback import client_config, free_endpoint, stop  # noqa: E402
 from schemas import (  # noqa: E402
     GazeTarget,
     Keys,
@@ -38,7 +38,6 @@ from schemas import (  # noqa: E402
     decode,
     encode,
 )
-from services.common.transport import tune  # noqa: E402
 
 CUP = (1.5, 0.15, 0.86)
 
@@ -64,10 +63,7 @@ def main() -> None:
             [sys.executable, "-m", "services.gaze", "--instance", "gaze-bench"], env=env
         ),
     ]
-    config = tune(zenoh.Config())
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", f'["{endpoint}"]')
-    config.insert_json5("scouting/multicast/enabled", "false")
+    config = client_config(endpoint)
     imu_at: dict[float, float] = {}
     latencies: list[float] = []
     commands = [0]
@@ -140,10 +136,7 @@ def main() -> None:
             for s in subs:
                 s.undeclare()
     finally:
-        for p in procs:
-            p.terminate()
-        for p in procs:
-            p.wait(30)
+        stop(procs)
         router.close()
     lat = np.array(latencies) * 1e3
     gaps = np.diff(arrivals) * 1e3

@@ -28,9 +28,8 @@ import zenoh  # noqa: E402
 
 from avs.launcher import threads_per_instance  # noqa: E402
 from avs.router import open_router  # noqa: E402
-from benchmarks.sim import free_endpoint  # noqa: E402
+from benchmarks._loopback import client_config, free_endpoint, stop  # noqa: E402
 from schemas import Keys, encode  # noqa: E402
-from services.common.transport import tune  # noqa: E402
 from services.sim import capture  # noqa: E402
 from services.sim.render import CameraRenderer  # noqa: E402
 from services.sim.robots import ARMAR6  # noqa: E402
@@ -56,10 +55,7 @@ def run(endpoint: str, workers: int, payloads: list[bytes]) -> float:
     names = [f"bench-{workers}-{i}" for i in range(workers)]
     procs = [subprocess.Popen([sys.executable, "-m", "services.perception", "--instance", n],
                               env=env) for n in names]  # fmt: skip
-    config = tune(zenoh.Config())
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", f'["{endpoint}"]')
-    config.insert_json5("scouting/multicast/enabled", "false")
+    config = client_config(endpoint)
     done = [0]
     lock = threading.Lock()
     all_back = threading.Event()
@@ -91,10 +87,7 @@ def run(endpoint: str, workers: int, payloads: list[bytes]) -> float:
             elapsed = time.perf_counter() - t0
             sub.undeclare()
     finally:
-        for p in procs:
-            p.terminate()
-        for p in procs:
-            p.wait(30)
+        stop(procs)
     return len(payloads) / elapsed
 
 

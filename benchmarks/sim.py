@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import socket
 import subprocess
 import sys
 import threading
@@ -24,14 +23,8 @@ sys.path.insert(0, str(ROOT))
 import zenoh  # noqa: E402
 
 from avs.router import open_router  # noqa: E402
+from benchmarks._loopback import client_config, free_endpoint, stop  # noqa: E402
 from schemas import Keys  # noqa: E402
-from services.common.transport import tune  # noqa: E402
-
-
-def free_endpoint() -> str:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return f"tcp/127.0.0.1:{s.getsockname()[1]}"
 
 
 def run(endpoint: str, width: int, height: int, seconds: float) -> tuple[float, float]:
@@ -61,10 +54,7 @@ def run(endpoint: str, width: int, height: int, seconds: float) -> tuple[float, 
         ],
         env=env,
     )
-    config = tune(zenoh.Config())
-    config.insert_json5("mode", '"client"')
-    config.insert_json5("connect/endpoints", f'["{endpoint}"]')
-    config.insert_json5("scouting/multicast/enabled", "false")
+    config = client_config(endpoint)
     counts = {"frames": 0, "imu": 0}
     lock = threading.Lock()
 
@@ -97,8 +87,7 @@ def run(endpoint: str, width: int, height: int, seconds: float) -> tuple[float, 
             frames = (counts["frames"] - start["frames"]) / elapsed
             imu = (counts["imu"] - start["imu"]) / elapsed
     print(file=sys.stderr)
-    sim.terminate()
-    sim.wait(30)
+    stop([sim])
     return frames, imu
 
 

@@ -40,6 +40,19 @@ def control(client, **request) -> SimStatus:
     return status
 
 
+def start_sim_and_gaze(procs, client, router, name: str, sim_args: list[str], gaze_args: list[str]):
+    """The sim (ARMAR-III, localization) and the gaze service as processes, instances
+    sim-<name> and gaze-<name>; returns the gaze process once both are alive."""
+    env = avs_env(router, MUJOCO_GL="egl", AVS_ROBOT="armar3")
+    procs.python(["-m", "services.sim", "--instance", f"sim-{name}", "--scene", "localization",
+                  *sim_args], env=env)  # fmt: skip
+    gaze = procs.python(["-m", "services.gaze", "--instance", f"gaze-{name}", *gaze_args],
+                        env=env)  # fmt: skip
+    wanted = {KEYS.alive("sim", f"sim-{name}"), KEYS.alive("gaze", f"gaze-{name}")}
+    wait_for(lambda: wanted <= liveliness_tokens(client, KEYS.alive()), 90, "sim and gaze")
+    return gaze
+
+
 def metrics_of(client, instance: str) -> ServiceMetrics:
     replies = [r.ok for r in client.get(KEYS.metrics("gaze", instance), timeout=5) if r.ok]
     return decode(replies[0].payload.to_bytes(), ServiceMetrics)
@@ -53,33 +66,9 @@ def metrics(client) -> ServiceMetrics:
 def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_imu(
     router, client, procs
 ):
-    env = avs_env(router, MUJOCO_GL="egl", AVS_ROBOT="armar3")
-    procs.python(
-        [
-            "-m",
-            "services.sim",
-            "--instance",
-            "sim-test",
-            "--scene",
-            "localization",
-            "--cameras",
-            "left_foveal",
-            "--fps",
-            "10",
-        ],
-        env=env,
-    )
-    gaze = procs.python(
-        ["-m", "services.gaze", "--instance", "gaze-test", "--blob-camera", "left_foveal"], env=env
-    )
-    wait_for(
-        lambda: (
-            {KEYS.alive("sim", "sim-test"), KEYS.alive("gaze", "gaze-test")}
-            <= liveliness_tokens(client, KEYS.alive())
-        ),
-        90,
-        "sim and gaze to come up",
-    )
+    sim_args = ["--cameras", "left_foveal", "--fps", "10"]
+    gaze = start_sim_and_gaze(procs, client, router, "test", sim_args,
+                              ["--blob-camera", "left_foveal"])  # fmt: skip
     lock = threading.Lock()
     joints: list[JointState] = []
     commands: list[HeadCommand] = []
@@ -158,19 +147,7 @@ def test_without_a_target_the_gaze_goes_to_the_object_it_knows_least(router, cli
     """Thesis 5.1: the cup has been localised twice (σ below the 1 cm task acuity: no
     saliency), the box once (σ above it): the ego-sphere's winner is the box, and the cup is
     never fixated (inhibition of return alone would take turns between two salient objects)."""
-    env = avs_env(router, MUJOCO_GL="egl", AVS_ROBOT="armar3")
-    procs.python(["-m", "services.sim", "--instance", "sim-sel", "--scene", "localization",
-                  "--fps", "0"], env=env)  # fmt: skip
-    procs.python(["-m", "services.gaze", "--instance", "gaze-sel", "--select-every", "1.0"],
-                 env=env)  # fmt: skip
-    wait_for(
-        lambda: (
-            {KEYS.alive("sim", "sim-sel"), KEYS.alive("gaze", "gaze-sel")}
-            <= liveliness_tokens(client, KEYS.alive())
-        ),
-        90,
-        "sim and gaze to come up",
-    )
+    start_sim_and_gaze(procs, client, router, "sel", ["--fps", "0"], ["--select-every", "1.0"])
     states: list[JointState] = []
     sub = client.declare_subscriber(
         KEYS.joints(), lambda s: states.append(decode(s.payload.to_bytes(), JointState))

@@ -18,23 +18,15 @@ from schemas import (
     decode,
     encode,
 )
-from services.sim import capture
-from services.sim.render import CameraRenderer
-from services.sim.robots import ARMAR6
-from services.sim.world import World
 from tests.conftest import avs_env, matched_publisher, wait_for
+from tests.perception.frames import clutter_frame
 
 KEYS = Keys()
 
 
-@pytest.fixture(scope="module")
-def clutter_frame() -> RgbdFrame:
-    world = World("tabletop_clutter", ARMAR6)
-    renderer = CameraRenderer(world.model, 640, 480)
-    T, stamp = capture.snapshot(world, renderer, "head_rgbd")
-    frame = capture.frame(world, renderer, "head_rgbd", T, stamp, 41, np.random.default_rng(0))
-    renderer.close()
-    return frame
+@pytest.fixture(scope="module", name="clutter_frame")
+def full_frame() -> RgbdFrame:
+    return clutter_frame(640, 480, seq=41)
 
 
 def _metrics(client) -> ServiceMetrics:

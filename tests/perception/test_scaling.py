@@ -8,16 +8,12 @@ import signal
 import threading
 import time
 
-import numpy as np
 import pytest
 
 from schemas import Keys, SceneObservation, decode, encode
 from services.common.membership import owner
-from services.sim import capture
-from services.sim.render import CameraRenderer
-from services.sim.robots import ARMAR6
-from services.sim.world import World
 from tests.conftest import avs_env, liveliness_tokens, matched_publisher, wait_for
+from tests.perception.frames import clutter_frame
 
 KEYS = Keys()
 WORKERS = ("p-a", "p-b", "p-c")
@@ -26,12 +22,7 @@ RATE = 30.0  # frames per second
 
 @pytest.fixture(scope="module")
 def small_frame():
-    world = World("tabletop_clutter", ARMAR6)
-    renderer = CameraRenderer(world.model, 320, 240)
-    T, stamp = capture.snapshot(world, renderer, "head_rgbd")
-    frame = capture.frame(world, renderer, "head_rgbd", T, stamp, 0, np.random.default_rng(0))
-    renderer.close()
-    return frame
+    return clutter_frame(320, 240)
 
 
 def start_workers(procs, client, router):

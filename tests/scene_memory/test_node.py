@@ -115,6 +115,18 @@ class Client:
         return self.stats().seq
 
 
+def sender(client, updates: list[Update]):
+    """put(i) publishes update i (a frame or an observation) to the scene memory."""
+    pub = {"frame": matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60),
+           "observation": matched_publisher(client, KEYS.observation(), timeout=30)}  # fmt: skip
+
+    def put(i: int) -> None:
+        kind, message = updates[i]
+        pub[kind].put(encode(message))
+
+    return put
+
+
 def start(procs, router, data_dir, snapshot_every: int, instance: str = "m0"):
     args = [
         "-m", "services.scene_memory", "--instance", instance, "--data-dir", str(data_dir),
@@ -136,13 +148,10 @@ def test_fuses_serves_and_survives_kill_9(client, router, procs, tmp_path, updat
     client.declare_subscriber(KEYS.scene(), keep)
     c = Client(client)
     service = start(procs, router, tmp_path, snapshot_every=4)
-    frames = matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60)
-    observations = matched_publisher(client, KEYS.observation(), timeout=30)
-    pub = {"frame": frames, "observation": observations}
+    put = sender(client, updates)
 
     def send(i: int) -> None:
-        kind, message = updates[i]
-        pub[kind].put(encode(message))
+        put(i)
 
     # the first seven updates, each one applied before the next is sent
     for i in range(7):
@@ -215,13 +224,10 @@ def test_a_standby_takes_over_within_2_s_when_the_active_is_killed(
     start(procs, router, tmp_path, 4, "m-b")
     standby = KEYS.alive("scene_memory_standby", "m-b")
     wait_for(lambda: standby in liveliness_tokens(client, KEYS.alive()), 60, "the standby")
-    frames = matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60)
-    observations = matched_publisher(client, KEYS.observation(), timeout=30)
-    pub = {"frame": frames, "observation": observations}
+    put = sender(client, updates)
 
     def send(i: int) -> None:
-        kind, message = updates[i]
-        pub[kind].put(encode(message))
+        put(i)
         wait_for(lambda: c.applied() == i + 1, 60, f"update {i + 1}")
 
     for i in range(6):
