@@ -133,11 +133,19 @@ class Supervisor:
         for child in self.children:
             self._spawn(child)
 
+    def _ready(self) -> bool:
+        """Every instance is up (its token, or its standby token), and every service has an
+        active one (a service whose instances all stand by is not serving yet)."""
+        if not all(c.alive or c.failed for c in self.children):
+            return False
+        services = {c.info.name for c in self.children if not c.failed}
+        return all(any(c.active for c in self.children if c.info.name == s) for s in services)
+
     def wait_ready(self, timeout: float) -> bool:
         """Block until every service has declared its liveliness token, or ``timeout``."""
         deadline = time.monotonic() + timeout
         with self._changed:
-            while not all(c.alive or c.failed for c in self.children):
+            while not self._ready():
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     return False

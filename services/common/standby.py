@@ -27,34 +27,50 @@ def wait_for_turn(
     service: str,
     instance: str,
     stopping: Callable[[], bool],
-    discover_s: float = 0.5,
+    discover_s: float = 1.5,
 ) -> zenoh.LivelinessToken | None:
     """Block until this instance is to be the active one (its standby token, to undeclare
     once the service's is declared), or ``stopping()`` (None)."""
     standby = f"{service}_standby"
     token = session.liveliness().declare_token(keys.alive(standby, instance))
     changed = threading.Event()
-    subs = [
-        session.liveliness().declare_subscriber(keys.alive(s), lambda _s: changed.set())
-        for s in (service, standby)
-    ]
+    seen: dict[str, set[str]] = {service: set(), standby: set()}
+    lock = threading.Lock()
+
+    def on(sample: zenoh.Sample) -> None:
+        *_, kind, who = str(sample.key_expr).split("/")
+        with lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                seen[kind].add(who)
+            else:
+                seen[kind].discard(who)
+        changed.set()
+
+    # the tokens as the router knows them, kept up to date (history: those already there)
+    subs = [session.liveliness().declare_subscriber(keys.alive(s), on, history=True)
+            for s in (service, standby)]  # fmt: skip
 
     def live(s: str) -> list[str]:
-        replies = session.liveliness().get(keys.alive(s), timeout=2.0)
-        return sorted(str(r.ok.key_expr).rsplit("/", 1)[-1] for r in replies if r.ok)
+        with lock:
+            return sorted(seen[s])
 
     try:
         time.sleep(discover_s)  # let instances started together see each other
-        said = False
+        said, mine = False, 0
         while not stopping():
             active, waiting = live(service), live(standby)
             if not active and owner("active", [*waiting, instance]) == instance:
-                log.info("taking over as the active %s", service, extra={"standby": waiting})
-                return token
+                mine += 1
+                if mine == 2:  # the same answer twice, 0.1 s apart: no late joiner in between
+                    log.info("taking over as the active %s", service, extra={"standby": waiting})
+                    return token
+                time.sleep(0.1)
+                continue
+            mine = 0
             if not said:
                 log.info("standing by", extra={"active": active, "standby": waiting})
                 said = True
-            changed.wait(0.5)
+            changed.wait(0.2)
             changed.clear()
         token.undeclare()
         return None
