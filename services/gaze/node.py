@@ -92,6 +92,7 @@ class GazeNode:
         self.chosen: np.ndarray | None = None  # ego-sphere winner (world point)
         self.chosen_at = -math.inf
         self.holding: str = ""  # why the head is held, "" while controlling
+        node.metrics.gauge("holding", 0)
         self.commanding = False
         self.seq = 0
         self.steps = 0
@@ -154,6 +155,9 @@ class GazeNode:
             return
         # the model's pose of the camera when the frame was taken, not when it arrived
         js = min(history, key=lambda m: abs(m.stamp - frame.stamp))
+        if abs(js.stamp - frame.stamp) > 0.02:  # no joint state of the frame's time: no slip
+            self.slip_stamp = None
+            return
         kin = self.okr_kin
         joints = dict(zip(js.names, js.position.tolist(), strict=True))
         kin.update(kin.configuration((base.x, base.y, base.yaw), joints))
@@ -162,7 +166,10 @@ class GazeNode:
             self.slip = RetinalSlip((K.fx, K.fy, K.cx, K.cy))
         slip = self.slip.update(frame.rgb, kin.camera_pose(self.okr_camera), frame.stamp, target)
         last, self.slip_stamp = self.slip_stamp, frame.stamp
-        if slip is not None and last is not None:
+        if slip is not None and last is not None and frame.stamp - last < 0.5:
+            if float(np.abs(slip).max()) > 1.0:  # > 57°/s of unexplained drift: a bad track
+                self.node.drop("implausible_slip", self.s.okr_camera or "okr", f"slip {slip}")
+                return
             with self.lock:
                 self.stab.observe_slip(self.okr_camera, slip, frame.stamp - last)
             self.node.metrics.gauge("okr_offset_m", float(np.linalg.norm(self.stab.offset)))

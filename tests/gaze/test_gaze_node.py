@@ -1,7 +1,7 @@
 """The gaze service as a process against the sim as a process (real time, ARMAR-III in the
 localization scene) over a loopback router: a manual gaze/target is held while the hip
-swings (OKR on the foveal frames), commands carry the IMU stamp that caused them, and a
-silent IMU holds the head."""
+swings, blobs of the foveal frames go on the ego-sphere, commands carry the IMU stamp that
+caused them, and a silent IMU holds the head."""
 
 from __future__ import annotations
 
@@ -120,9 +120,7 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     assert all(c.trigger_stamp is not None for c in gaze_cmds if np.any(c.values))
     m = metrics(client)
     assert m.extra["control_steps"] > 3000 and m.extra["holding"] == 0
-    # OKR runs on the foveal frames; with the forward model right there is little slip to take
-    assert m.messages_in.get(KEYS.rgbd("left_foveal"), 0) > 30
-    assert 0 < m.extra["okr_offset_m"] < 0.01
+    assert m.messages_in.get(KEYS.rgbd("left_foveal"), 0) > 30  # the blob camera's frames
     assert m.extra["blobs"] >= 1  # the green cup (and the box's marks) on the ego-sphere
     with lock:
         snapshots = [e for e in egospheres if "blob" in e.sources]
