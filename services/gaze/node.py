@@ -47,6 +47,12 @@ SPEED = {
 }
 
 
+def platform_rotation(yaw: float) -> np.ndarray:
+    """R_world_platform: the ego-sphere's directions are in the platform frame."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
 def localisation_covariance(depth: float) -> np.ndarray:
     """A primitive centre's covariance (world axes, roughly): 1 cm of fitting error each way
     (a primitive from one view), plus the structured-light depth noise at its depth
@@ -187,8 +193,7 @@ class GazeNode:
         K = frame.intrinsics
         uv = np.array([(u, v) for u, v, _ in blobs])
         rays = pixel_rays(uv, (K.fx, K.fy, K.cx, K.cy), frame.T_world_camera)
-        c, s = math.cos(base.yaw), math.sin(base.yaw)
-        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # world ← platform
+        R = platform_rotation(base.yaw)
         with self.lock:
             head = self._head_position()
         for (u, v), ray in zip(uv, rays, strict=True):
@@ -270,8 +275,7 @@ class GazeNode:
     def select(self, stamp: float, base: BasePose) -> np.ndarray | None:
         """Put the objects' saliencies on the ego-sphere, take the winner, inhibit it."""
         head = self._head_position()
-        c, s = math.cos(base.yaw), math.sin(base.yaw)
-        R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])  # world ← platform
+        R = platform_rotation(base.yaw)
         self.ego.source("object").values[:] = 0.0  # the beliefs as they are now, drawn anew
         for b in self.objects:
             b.predict(stamp)
