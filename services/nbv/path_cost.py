@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from itertools import pairwise
 
 import numpy as np
 from scipy import ndimage
@@ -95,10 +96,12 @@ class PathPlanner:
         vel_rot: float,
         margin: float = 0.05,
         time_limit: float = 0.2,
+        attempts: int = 3,
     ) -> None:
         self.floor, self.vel_lin, self.vel_rot = floor, vel_lin, vel_rot
         self.need = radius + margin
         self.time_limit = time_limit
+        self.attempts = attempts
         self.free = floor.clearance >= self.need
         self.labels, _ = ndimage.label(self.free)
         self._si = None
@@ -107,9 +110,22 @@ class PathPlanner:
         return self.floor.lookup(xy) >= self.need
 
     def _segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
-        n = max(2, int(np.linalg.norm(b[:2] - a[:2]) / (self.floor.cell / 2)) + 1)
-        pts = a[None, :2] + np.linspace(0, 1, n)[:, None] * (b[:2] - a[:2])[None]
-        return bool(self.valid(pts).all())
+        """Every floor cell the segment a→b touches is free (exact, not sampled): the segment
+        is cut where it crosses a grid line, and each piece's midpoint names one cell."""
+        a, b = np.asarray(a, float)[:2], np.asarray(b, float)[:2]
+        d = b - a
+        cuts = [np.array([0.0, 1.0])]
+        for i in range(2):
+            if d[i] != 0.0:
+                lines = (np.asarray([a[i], b[i]]) - self.floor.origin[i]) / self.floor.cell
+                k = np.arange(math.ceil(lines.min()), math.floor(lines.max()) + 1)
+                cuts.append((self.floor.origin[i] + k * self.floor.cell - a[i]) / d[i])
+        t = np.unique(np.clip(np.concatenate(cuts), 0.0, 1.0))
+        mid = np.concatenate([[0.0], (t[:-1] + t[1:]) / 2, [1.0]])
+        return bool(self.valid(a[None] + mid[:, None] * d[None]).all())
+
+    def path_free(self, path: np.ndarray) -> bool:
+        return all(self._segment_free(a, b) for a, b in pairwise(path))
 
     def _label(self, xy) -> int:
         k = np.floor((np.asarray(xy[:2]) - self.floor.origin) / self.floor.cell).astype(int)
@@ -159,13 +175,21 @@ class PathPlanner:
                 return bool(0 <= i < nx and 0 <= j < ny and clearance[i, j] >= need)
 
             si.setStateValidityChecker(valid)
-            # motions checked every 2.5 cm (the footprint keeps a 5 cm margin)
-            si.setStateValidityCheckingResolution(0.025 / float(np.max(hi - lo)))
+            # motions checked every half cell (a fraction of the SE(2) extent, yaw included);
+            # the final path is checked exactly below
+            si.setStateValidityCheckingResolution(self.floor.cell / 2 / space.getMaximumExtent())
             si.setup()
             self._si, self._space, self._valid = si, space, valid
         return self._si
 
     def _rrt(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        for _ in range(self.attempts):
+            path = self._rrt_once(start, goal)
+            if path is None or self.path_free(path):
+                return path
+        return None  # only paths that graze an obstacle between the motion checks were found
+
+    def _rrt_once(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         from ompl import base as ob
         from ompl import geometric as og
 
