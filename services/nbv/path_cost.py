@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from itertools import pairwise
 
 import numpy as np
+from numba import njit
 from scipy import ndimage
 
 from services.nbv.view_sphere import wrap
@@ -27,6 +27,34 @@ def path_cost(path: np.ndarray, vel_lin: float, vel_rot: float) -> float:
     lin = np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1) / vel_lin
     rot = np.abs(wrap(path[:-1, 2] - path[1:, 2])) / vel_rot
     return float(np.maximum(lin, rot).sum())
+
+
+@njit(cache=True, nogil=True)
+def segment_free(free: np.ndarray, ax: float, ay: float, bx: float, by: float) -> bool:
+    """Grid traversal (Amanatides & Woo 1987) of the segment a→b, in cell units: True when
+    every cell it passes through is ``free`` (cells outside the grid are not). Exact, where
+    sampling points along the segment can step over the corner of an obstacle."""
+    nx, ny = free.shape
+    i, j = math.floor(ax), math.floor(ay)
+    i_end, j_end = math.floor(bx), math.floor(by)
+    dx, dy = bx - ax, by - ay
+    si = 1 if dx > 0 else -1
+    sj = 1 if dy > 0 else -1
+    # the segment's parameter t ∈ [0, 1] at the next cell boundary along x, y, and per cell
+    tdx = abs(1.0 / dx) if dx != 0 else math.inf
+    tdy = abs(1.0 / dy) if dy != 0 else math.inf
+    tx = ((i + 1 - ax) if dx > 0 else (ax - i)) * tdx if dx != 0 else math.inf
+    ty = ((j + 1 - ay) if dy > 0 else (ay - j)) * tdy if dy != 0 else math.inf
+    for _ in range(abs(i_end - i) + abs(j_end - j) + 1):
+        if i < 0 or j < 0 or i >= nx or j >= ny or not free[i, j]:
+            return False
+        if tx < ty:
+            tx += tdx
+            i += si
+        else:
+            ty += tdy
+            j += sj
+    return True
 
 
 @dataclass
@@ -96,12 +124,10 @@ class PathPlanner:
         vel_rot: float,
         margin: float = 0.05,
         time_limit: float = 0.2,
-        attempts: int = 3,
     ) -> None:
         self.floor, self.vel_lin, self.vel_rot = floor, vel_lin, vel_rot
         self.need = radius + margin
         self.time_limit = time_limit
-        self.attempts = attempts
         self.free = floor.clearance >= self.need
         self.labels, _ = ndimage.label(self.free)
         self._si = None
@@ -110,22 +136,12 @@ class PathPlanner:
         return self.floor.lookup(xy) >= self.need
 
     def _segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
-        """Every floor cell the segment a→b touches is free (exact, not sampled): the segment
-        is cut where it crosses a grid line, and each piece's midpoint names one cell."""
-        a, b = np.asarray(a, float)[:2], np.asarray(b, float)[:2]
-        d = b - a
-        cuts = [np.array([0.0, 1.0])]
-        for i in range(2):
-            if d[i] != 0.0:
-                lines = (np.asarray([a[i], b[i]]) - self.floor.origin[i]) / self.floor.cell
-                k = np.arange(math.ceil(lines.min()), math.floor(lines.max()) + 1)
-                cuts.append((self.floor.origin[i] + k * self.floor.cell - a[i]) / d[i])
-        t = np.unique(np.clip(np.concatenate(cuts), 0.0, 1.0))
-        mid = np.concatenate([[0.0], (t[:-1] + t[1:]) / 2, [1.0]])
-        return bool(self.valid(a[None] + mid[:, None] * d[None]).all())
-
-    def path_free(self, path: np.ndarray) -> bool:
-        return all(self._segment_free(a, b) for a, b in pairwise(path))
+        """Every floor cell the footprint's centre crosses from a to b is free (exact)."""
+        o, cell = self.floor.origin, self.floor.cell
+        return segment_free(
+            self.free, (a[0] - o[0]) / cell, (a[1] - o[1]) / cell,
+            (b[0] - o[0]) / cell, (b[1] - o[1]) / cell,
+        )  # fmt: skip
 
     def _label(self, xy) -> int:
         k = np.floor((np.asarray(xy[:2]) - self.floor.origin) / self.floor.cell).astype(int)
@@ -174,22 +190,25 @@ class PathPlanner:
                 j = int((state.getY() - origin[1]) / cell)
                 return bool(0 <= i < nx and 0 <= j < ny and clearance[i, j] >= need)
 
+            segment_free = self._segment_free
+
+            class ExactMotions(ob.MotionValidator):
+                """A motion is valid when every cell its footprint centre crosses is (the
+                footprint is a disc: yaw does not matter), one vectorised check per motion
+                instead of OMPL's state-by-state sampling, which can cut a corner."""
+
+                def checkMotion(self, s1, s2, *last_valid) -> bool:
+                    a = np.array([s1.getX(), s1.getY()])
+                    return segment_free(a, np.array([s2.getX(), s2.getY()]))
+
             si.setStateValidityChecker(valid)
-            # motions checked every half cell (a fraction of the SE(2) extent, yaw included);
-            # the final path is checked exactly below
-            si.setStateValidityCheckingResolution(self.floor.cell / 2 / space.getMaximumExtent())
+            self._motions = ExactMotions(si)  # kept alive here: OMPL holds no reference
+            si.setMotionValidator(self._motions)
             si.setup()
             self._si, self._space, self._valid = si, space, valid
         return self._si
 
     def _rrt(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
-        for _ in range(self.attempts):
-            path = self._rrt_once(start, goal)
-            if path is None or self.path_free(path):
-                return path
-        return None  # only paths that graze an obstacle between the motion checks were found
-
-    def _rrt_once(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
         from ompl import base as ob
         from ompl import geometric as og
 
