@@ -25,12 +25,7 @@ class GazeSettings(ServiceSettings):
     damping: float = Field(0.02, ge=0, description="λ of the damped least squares")
     eye_weight: float = Field(8.0, gt=0, description="eye joints' weight, the neck's being 1")
     vor_gain: float = Field(1.0, ge=0, description="VOR: share of the unpredicted rotation")
-    okr_gain: float = Field(
-        0.0,
-        ge=0,
-        description="OKR in the node: share of the retinal slip taken (0: off; 1 in the "
-        "stabiliser's tests, but over Zenoh frames it has thrown the gaze off: opt in)",
-    )
+    okr_gain: float = Field(1.0, ge=0, description="OKR: share of the retinal slip taken (0: off)")
     okr_camera: str = Field(
         "", description="camera whose frames give the retinal slip (default: the first fixating)"
     )

@@ -86,9 +86,14 @@ class GazeNode:
         self.ego = EgoSphere(settings.points, settings.expiry)
         look = [n for n in self.joints if n not in ("neck_roll", "eye_pan_right")]
         self.ego.prune(self.kin.reachable_directions(cameras[0], look, 5000), 4.0)
+        # two locks: ``lock`` for attention (targets, objects, the ego-sphere), ``stab_lock``
+        # for the stabiliser (taken last when both are needed); the control step holds the
+        # second, so no frame's or observation's work can hold up a head command
         self.lock = threading.Lock()
+        self.stab_lock = threading.Lock()
         self.joint_state: JointState | None = None
         self.joint_history: deque[JointState] = deque(maxlen=200)  # 1 s at 200 Hz, for OKR
+        self.gyro_history: deque[tuple[float, np.ndarray]] = deque(maxlen=100)  # for the VOR
         self.base: BasePose | None = None
         self.received: dict[str, float] = {}  # wall time of the last sample per input
         self.targets: dict[str, GazeTarget] = {}  # the freshest per source
@@ -109,7 +114,9 @@ class GazeNode:
         node.subscribe(k.base_state(), BasePose, self.on_base)
         node.subscribe(k.gaze_target(), GazeTarget, self.on_target)
         node.subscribe(k.observation(), SceneObservation, self.on_observation)  # each one counts
-        node.subscribe(k.imu(), ImuSample, self.on_imu)
+        # the newest IMU sample only: after a stall the control step acts on the present, not
+        # on a backlog of the past (a queue of stale steps delays every command after it)
+        node.subscribe(k.imu(), ImuSample, self.on_imu, latest_only=True, name="on_imu")
         if settings.blob_camera:
             node.subscribe(k.rgbd(settings.blob_camera), RgbdFrame, self.on_blobs,
                            latest_only=True, name="on_blobs")  # fmt: skip
@@ -176,7 +183,7 @@ class GazeNode:
             if float(np.abs(slip).max()) > 1.0:  # > 57°/s of unexplained drift: a bad track
                 self.node.drop("implausible_slip", self.s.okr_camera or "okr", f"slip {slip}")
                 return
-            with self.lock:
+            with self.stab_lock:
                 self.stab.observe_slip(self.okr_camera, slip, frame.stamp - last)
             self.node.metrics.gauge("okr_offset_m", float(np.linalg.norm(self.stab.offset)))
 
@@ -194,14 +201,15 @@ class GazeNode:
         uv = np.array([(u, v) for u, v, _ in blobs])
         rays = pixel_rays(uv, (K.fx, K.fy, K.cx, K.cy), frame.T_world_camera)
         R = platform_rotation(base.yaw)
-        with self.lock:
-            head = self._head_position()
+        head = self._head_position()
+        directions = []
         for (u, v), ray in zip(uv, rays, strict=True):
             z = float(frame.depth[int(v), int(u)]) if frame.depth is not None else 0.0
             point = frame.T_world_camera[:3, 3] + ray * (z / ray @ frame.T_world_camera[:3, 2]
                                                           if z > 0 else 1.5)  # fmt: skip
-            to = point - head
-            with self.lock:
+            directions.append(point - head)
+        with self.lock:
+            for to in directions:
                 self.ego.add("blob", R.T @ to, self.s.blob_saliency, frame.stamp,
                              distance=float(np.linalg.norm(to)))  # fmt: skip
         self.node.metrics.gauge("blobs", len(blobs))
@@ -223,14 +231,15 @@ class GazeNode:
             self.hold("no fixation target")
             return
         names = js.names
-        with self.lock:
+        self.gyro_history.append((imu.stamp, np.asarray(imu.angular_velocity, float)))
+        with self.stab_lock:
             cmd = self.stab.command(
                 target,
                 (base.x, base.y, base.yaw),
                 (base.v_x, base.v_y, base.v_yaw),
                 dict(zip(names, js.position.tolist(), strict=True)),
                 dict(zip(names, js.velocity.tolist(), strict=True)),
-                np.asarray(imu.angular_velocity, float),
+                self.gyro_at(js.stamp),
                 imu.stamp,
             )
             self.current = target + self.stab.offset
@@ -251,6 +260,20 @@ class GazeNode:
         m.gauge("fixation_error_deg", math.degrees(max(cmd.error_rad.values())))
         m.gauge("unpredicted_rad_s", float(np.linalg.norm(cmd.unpredicted)))
         m.gauge("control_steps", self.steps)
+
+    def gyro_at(self, stamp: float) -> np.ndarray | None:
+        """The gyro at the joint state's time, for the VOR's reafference (ω_gyro − J_ω·v with
+        both of one instant): the newest gyro against a state up to 5 ms older (200 Hz) counts
+        the head's own acceleration meanwhile as a disturbance, and the VOR, cancelling it,
+        closes a loop of gain up to 2 through the delays, which oscillates. None (no VOR this
+        step) without a sample within 2.5 ms."""
+        best, gap = None, 2.5e-3
+        for t, gyro in reversed(self.gyro_history):  # newest first; the state is older
+            if abs(t - stamp) <= gap:
+                best, gap = gyro, abs(t - stamp)
+            elif t < stamp:
+                break
+        return best
 
     def _seq(self) -> int:
         self.seq += 1
@@ -290,7 +313,8 @@ class GazeNode:
         return head + R @ self.ego.points[j] * self.ego.distance(j, stamp)
 
     def _head_position(self) -> np.ndarray:
-        return self.kin.imu_rotation()[1]
+        with self.stab_lock:  # the stabiliser's kinematics, at the last control step
+            return self.kin.imu_rotation()[1].copy()
 
     # -- holding and snapshots ----------------------------------------------------------------
 

@@ -94,11 +94,16 @@ def test_a_green_cup_is_one_colour_blob_at_its_centre():
     v, u = np.mgrid[:240, :320]
     img[(u - 200.0) ** 2 + (v - 80.0) ** 2 < 20**2] = (25, 180, 40)
     img[100:140, 20:60] = (200, 30, 30)
-    blobs = sorted(colour_blobs(img), key=lambda b: -b[0])  # the cup on the right
-    assert len(blobs) == 2
-    (u0, v0, n0), (u1, v1, _) = blobs
-    assert abs(u0 - 200) < 0.5 and abs(v0 - 80) < 0.5 and 1200 < n0 < 1300
-    assert abs(u1 - 39.5) < 0.5 and abs(v1 - 119.5) < 0.5
+    for step, tol in ((1, 0.1), (2, 0.6)):  # every pixel, every 2nd (the default)
+        blobs = sorted(colour_blobs(img, step=step), key=lambda b: -b[0])  # the cup on the right
+        assert len(blobs) == 2
+        (u0, v0, n0), (u1, v1, n1) = blobs
+        assert abs(u0 - 200) < tol and abs(v0 - 80) < tol and 1200 < n0 < 1300
+        assert abs(u1 - 39.5) < tol and abs(v1 - 119.5) < tol and n1 == 1600
+    # a cluttered view keeps only the largest few
+    for k in range(20):
+        img[200:210, 10 + 15 * k : 20 + 15 * k] = (30, 30, 200)
+    assert [n for *_, n in colour_blobs(img, most=3)] == [1600, 1264, 100]
 
 
 def test_a_blob_pixel_gives_its_ray_in_the_world():

@@ -1,7 +1,7 @@
 """The gaze service as a process against the sim as a process (real time, ARMAR-III in the
 localization scene) over a loopback router: a manual gaze/target is held while the hip
-swings, commands carry the IMU stamp that caused them, the ego-sphere is published, and a
-silent IMU holds the head."""
+swings (OKR on the foveal frames, their colour blobs on the ego-sphere), commands carry the IMU
+stamp that caused them, and a silent IMU holds the head."""
 
 from __future__ import annotations
 
@@ -66,9 +66,9 @@ def metrics(client) -> ServiceMetrics:
 def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_imu(
     router, client, procs
 ):
-    # no camera frames here: rendering them on a loaded 2-core machine has thrown this test's
-    # timing off (blobs are tested in test_ego_sphere.py)
-    gaze = start_sim_and_gaze(procs, client, router, "test", ["--fps", "0"], [])
+    sim_args = ["--cameras", "left_foveal", "--fps", "10"]
+    gaze = start_sim_and_gaze(procs, client, router, "test", sim_args,
+                              ["--blob-camera", "left_foveal"])  # fmt: skip
     lock = threading.Lock()
     joints: list[JointState] = []
     commands: list[HeadCommand] = []
@@ -120,9 +120,14 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     assert all(c.trigger_stamp is not None for c in gaze_cmds if np.any(c.values))
     m = metrics(client)
     assert m.extra["control_steps"] > 3000 and m.extra["holding"] == 0
+    # OKR runs on the foveal frames; with the forward model right there is little slip to take
+    assert m.messages_in.get(KEYS.rgbd("left_foveal"), 0) > 30
+    assert 0 < m.extra["okr_offset_m"] < 0.01
+    assert m.extra["blobs"] >= 1  # the green cup (and the box's marks) on the ego-sphere
     with lock:
-        snapshots = list(egospheres)
+        snapshots = [e for e in egospheres if "blob" in e.sources]
     assert snapshots and len(snapshots[-1].saliency) == 2000  # gaze/egosphere, every 20th point
+    assert snapshots[-1].saliency.max() > 0.05
     # the sim pauses: no IMU, so the head is held (one zero command) and the node says so
     control(client, op="pause")
     wait_for(lambda: metrics(client).extra.get("holding") == 1, 5, "gaze to hold the head")
