@@ -2,15 +2,26 @@
 
 from __future__ import annotations
 
+import os
 import sys
+from pathlib import Path
 
 from services.common.main import run_node
 from services.gaze.config import GazeSettings
 from services.gaze.node import GazeNode
 
 
+def pin(cpus: list[int]) -> None:
+    """This process on ``cpus``: every thread so far (imports start some, e.g. BLAS's) and,
+    by inheritance, every thread started from now on."""
+    for task in Path("/proc/self/task").iterdir():
+        os.sched_setaffinity(int(task.name), cpus)
+
+
 def main(argv: list[str] | None = None) -> int:
     settings = GazeSettings.from_args(argv)
+    if settings.cpus:  # before Zenoh's threads and ours start: they inherit it
+        pin(settings.cpus)
     return run_node(settings, lambda node: GazeNode(node, settings))
 
 

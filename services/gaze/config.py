@@ -43,6 +43,11 @@ class GazeSettings(ServiceSettings):
     egosphere_rate: float = Field(2.0, ge=0, description="gaze/egosphere snapshots per second")
     egosphere_every: int = Field(20, ge=1, description="snapshot: every n-th point")
     acuity: float = Field(0.01, gt=0, description="α: the object localisation the task needs, m")
+    cpus: list[int] = Field(
+        default_factory=list,
+        description="pin the service to these CPUs (a core of its own keeps the control "
+        "loop's latency tail short on a shared machine; [] = no pinning)",
+    )
 
     def fixating(self) -> list[str]:
         return self.cameras or FIXATING.get(self.robot, [])

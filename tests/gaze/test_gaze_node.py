@@ -6,8 +6,10 @@ stamp that caused them, and a silent IMU holds the head."""
 from __future__ import annotations
 
 import math
+import os
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -147,7 +149,11 @@ def test_without_a_target_the_gaze_goes_to_the_object_it_knows_least(router, cli
     """Thesis 5.1: the cup has been localised twice (σ below the 1 cm task acuity: no
     saliency), the box once (σ above it): the ego-sphere's winner is the box, and the cup is
     never fixated (inhibition of return alone would take turns between two salient objects)."""
-    start_sim_and_gaze(procs, client, router, "sel", ["--fps", "0"], ["--select-every", "1.0"])
+    cpu = max(os.sched_getaffinity(0))  # and pinned to one CPU (AVS_GAZE_CPUS), every thread
+    gaze = start_sim_and_gaze(procs, client, router, "sel", ["--fps", "0"],
+                              ["--select-every", "1.0", "--cpus", str(cpu)])  # fmt: skip
+    threads = list(Path(f"/proc/{gaze.pid}/task").iterdir())
+    assert len(threads) > 5 and all(os.sched_getaffinity(int(t.name)) == {cpu} for t in threads)
     states: list[JointState] = []
     sub = client.declare_subscriber(
         KEYS.joints(), lambda s: states.append(decode(s.payload.to_bytes(), JointState))
