@@ -216,7 +216,8 @@ def test_a_standby_takes_over_within_2_s_when_the_active_is_killed(
 ):
     """Two instances on one data directory: one active, one standing by (no inputs, no
     queryables, its own token). kill -9 the active: the standby restores what was journaled
-    and serves memory/scene within 2 s, nothing lost, and the run goes on to the end."""
+    and serves memory/scene within 1.5 s (the issue asks for 2), nothing lost, and the run goes
+    on to the end."""
     c = Client(client)
     active = start(procs, router, tmp_path, 4, "m-a")
     wait_for(lambda: KEYS.alive("scene_memory", "m-a") in liveliness_tokens(client, KEYS.alive()),
@@ -224,6 +225,9 @@ def test_a_standby_takes_over_within_2_s_when_the_active_is_killed(
     start(procs, router, tmp_path, 4, "m-b")
     standby = KEYS.alive("scene_memory_standby", "m-b")
     wait_for(lambda: standby in liveliness_tokens(client, KEYS.alive()), 60, "the standby")
+    # a standby that has been standing by: past its start-up discovery (1.5 s), in which it
+    # only looks for other instances (a kill within it took 1.45 s to serve, not 0.4 s)
+    time.sleep(2.0)
     put = sender(client, updates)
 
     def send(i: int) -> None:
@@ -238,7 +242,7 @@ def test_a_standby_takes_over_within_2_s_when_the_active_is_killed(
     wait_for(lambda: _answers(c) and c.applied() == 6, 10, "the standby to serve")
     took = time.monotonic() - t0
     print(f"the standby served memory/scene {took:.2f} s after the kill")
-    assert took <= 2.0, took
+    assert took <= 1.5, took
     assert summary(c.scene()) == before  # nothing lost
     assert KEYS.alive("scene_memory", "m-b") in liveliness_tokens(client, KEYS.alive())
     for i in range(6, len(updates)):
