@@ -12,6 +12,23 @@ import numpy as np
 ROBOTS_DIR = Path(__file__).resolve().parents[1] / "sim" / "robots"
 
 
+#: the joints' speed limits (rad/s or m/s) the sim's servos keep to and the controllers plan
+#: with (a joint not named: 1 rad/s in the sim; the gaze stabiliser's default is 2)
+JOINT_SPEED: dict[str, dict[str, float]] = {
+    "armar6": {"torso_lift": 0.1, "neck_yaw": 2.0, "neck_pitch": 2.0},
+    "armar3": {
+        "hip_yaw": 1.0,
+        "neck_lower_pitch": 2.0,
+        "neck_roll": 2.0,
+        "neck_yaw": 2.0,
+        "neck_upper_pitch": 2.0,
+        "eye_tilt": 5.0,
+        "eye_pan_left": 5.0,
+        "eye_pan_right": 5.0,
+    },
+}
+
+
 def robot_mjcf(robot: str) -> Path:
     path = ROBOTS_DIR / f"{robot}.xml"
     if not path.is_file():

@@ -16,6 +16,8 @@ import math
 import threading
 import time
 from collections import deque
+from collections.abc import Sequence
+from typing import TypeVar
 
 import numpy as np
 
@@ -30,7 +32,7 @@ from schemas import (
     SceneObservation,
 )
 from services.common.node import Node
-from services.common.robots import robot_mjcf
+from services.common.robots import JOINT_SPEED, robot_mjcf
 from services.gaze.config import GazeSettings
 from services.gaze.ego_sphere import EgoSphere
 from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics
@@ -39,12 +41,7 @@ from services.gaze.saliency import ObjectBelief, colour_blobs, pixel_rays
 from services.gaze.stabiliser import GazeStabiliser, StabiliserConfig
 
 log = logging.getLogger("avs.gaze")
-
-#: joint speed limits (rad/s) the controller keeps to, per robot (the sim's servos' limits)
-SPEED = {
-    "armar3": {"eye_tilt": 5.0, "eye_pan_left": 5.0, "eye_pan_right": 5.0},
-    "armar6": {},
-}
+T = TypeVar("T")
 
 
 def platform_rotation(yaw: float) -> np.ndarray:
@@ -62,6 +59,18 @@ def localisation_covariance(depth: float) -> np.ndarray:
     return np.diag([0.01**2, 0.01**2, sz**2])
 
 
+def nearest(samples: Sequence[tuple[float, T]], stamp: float, within: float) -> T | None:
+    """The sample nearest ``stamp`` among (stamp, sample) pairs in arrival order, None without
+    one within ``within`` s (scanned from the newest, up to the first older than that)."""
+    best, gap = None, within
+    for t, sample in reversed(samples):
+        if abs(t - stamp) <= gap:
+            best, gap = sample, abs(t - stamp)
+        elif t < stamp:
+            break
+    return best
+
+
 class GazeNode:
     def __init__(self, node: Node, settings: GazeSettings) -> None:
         self.node, self.s = node, settings
@@ -74,7 +83,7 @@ class GazeNode:
                 self.joints, cameras, gain=settings.gain, damping=settings.damping,
                 eye_weight=settings.eye_weight, vor_gain=settings.vor_gain,
                 okr_gain=settings.okr_gain, odometry=settings.odometry,
-                speed=SPEED.get(settings.robot, {}),
+                speed=JOINT_SPEED.get(settings.robot, {}),
             ),
         )  # fmt: skip
         self.okr_camera = settings.okr_camera or cameras[0]
@@ -92,10 +101,11 @@ class GazeNode:
         self.lock = threading.Lock()
         self.stab_lock = threading.Lock()
         self.joint_state: JointState | None = None
-        self.joint_history: deque[JointState] = deque(maxlen=200)  # 1 s at 200 Hz, for OKR
-        self.gyro_history: deque[tuple[float, np.ndarray]] = deque(maxlen=100)  # for the VOR
+        # (stamp, sample) in arrival order: joint states for OKR (1 s at 200 Hz), gyro for the VOR
+        self.joint_history: deque[tuple[float, JointState]] = deque(maxlen=200)
+        self.gyro_history: deque[tuple[float, np.ndarray]] = deque(maxlen=100)
         self.base: BasePose | None = None
-        self.received: dict[str, float] = {}  # wall time of the last sample per input
+        self.imu_wall = -math.inf  # wall time of the last IMU sample, for the watchdog
         self.targets: dict[str, GazeTarget] = {}  # the freshest per source
         self.targets_wall: dict[str, float] = {}
         self.current: np.ndarray | None = None  # the fixation point of the last control step
@@ -130,12 +140,10 @@ class GazeNode:
 
     def on_joints(self, msg: JointState) -> None:
         self.joint_state = msg
-        self.joint_history.append(msg)
-        self.received["state/joints"] = time.monotonic()
+        self.joint_history.append((msg.stamp, msg))
 
     def on_base(self, msg: BasePose) -> None:
         self.base = msg
-        self.received["state/base"] = time.monotonic()
 
     def on_target(self, msg: GazeTarget) -> None:
         with self.lock:
@@ -163,12 +171,12 @@ class GazeNode:
         """OKR: the retinal slip of the fixation point between this frame and the last, against
         the forward model's camera poses (the joint state and odometry at hand)."""
         base, target = self.base, self.current
-        history = list(self.joint_history)
-        if frame.rgb is None or not history or base is None or target is None:
+        if frame.rgb is None or base is None or target is None:
             return
-        # the model's pose of the camera when the frame was taken, not when it arrived
-        js = min(history, key=lambda m: abs(m.stamp - frame.stamp))
-        if abs(js.stamp - frame.stamp) > 0.02:  # no joint state of the frame's time: no slip
+        # the model's pose of the camera when the frame was taken, not when it arrived (a copy:
+        # the joint states' thread appends meanwhile)
+        js = nearest(list(self.joint_history), frame.stamp, 0.02)
+        if js is None:  # no joint state of the frame's time: no slip
             self.slip_stamp = None
             return
         kin = self.okr_kin
@@ -181,7 +189,7 @@ class GazeNode:
         last, self.slip_stamp = self.slip_stamp, frame.stamp
         if slip is not None and last is not None and frame.stamp - last < 0.5:
             if float(np.abs(slip).max()) > 1.0:  # > 57°/s of unexplained drift: a bad track
-                self.node.drop("implausible_slip", self.s.okr_camera or "okr", f"slip {slip}")
+                self.node.drop("implausible_slip", self.okr_camera, f"slip {slip}")
                 return
             with self.stab_lock:
                 self.stab.observe_slip(self.okr_camera, slip, frame.stamp - last)
@@ -216,8 +224,8 @@ class GazeNode:
 
     def on_imu(self, imu: ImuSample) -> None:
         """One control step per IMU sample."""
-        now = time.monotonic()
-        self.received["sensors/imu"] = now
+        self.imu_wall = time.monotonic()
+        self.gyro_history.append((imu.stamp, np.asarray(imu.angular_velocity, float)))
         js, base = self.joint_state, self.base
         # inputs' ages on the sample clock (sim or wall time alike, lockstep included)
         ages = {"state/joints": js, "state/base": base}
@@ -231,7 +239,6 @@ class GazeNode:
             self.hold("no fixation target")
             return
         names = js.names
-        self.gyro_history.append((imu.stamp, np.asarray(imu.angular_velocity, float)))
         with self.stab_lock:
             cmd = self.stab.command(
                 target,
@@ -239,7 +246,12 @@ class GazeNode:
                 (base.v_x, base.v_y, base.v_yaw),
                 dict(zip(names, js.position.tolist(), strict=True)),
                 dict(zip(names, js.velocity.tolist(), strict=True)),
-                self.gyro_at(js.stamp),
+                # the gyro of the joint state's instant, for the VOR's reafference
+                # (ω_gyro − J_ω·v of one instant): the newest gyro against a state up to 5 ms
+                # older (200 Hz) counts the head's own acceleration meanwhile as a disturbance,
+                # and the VOR, cancelling it, closes a loop of gain up to 2 through the delays,
+                # which oscillates; no sample within 2.5 ms: no VOR this step
+                nearest(self.gyro_history, js.stamp, 2.5e-3),
                 imu.stamp,
             )
             self.current = target + self.stab.offset
@@ -260,20 +272,6 @@ class GazeNode:
         m.gauge("fixation_error_deg", math.degrees(max(cmd.error_rad.values())))
         m.gauge("unpredicted_rad_s", float(np.linalg.norm(cmd.unpredicted)))
         m.gauge("control_steps", self.steps)
-
-    def gyro_at(self, stamp: float) -> np.ndarray | None:
-        """The gyro at the joint state's time, for the VOR's reafference (ω_gyro − J_ω·v with
-        both of one instant): the newest gyro against a state up to 5 ms older (200 Hz) counts
-        the head's own acceleration meanwhile as a disturbance, and the VOR, cancelling it,
-        closes a loop of gain up to 2 through the delays, which oscillates. None (no VOR this
-        step) without a sample within 2.5 ms."""
-        best, gap = None, 2.5e-3
-        for t, gyro in reversed(self.gyro_history):  # newest first; the state is older
-            if abs(t - stamp) <= gap:
-                best, gap = gyro, abs(t - stamp)
-            elif t < stamp:
-                break
-        return best
 
     def _seq(self) -> int:
         self.seq += 1
@@ -338,7 +336,7 @@ class GazeNode:
         """Without IMU samples nothing runs the control step: hold from here."""
         while not self.node.stopping:
             time.sleep(self.s.stale_ms / 2e3)
-            silent = time.monotonic() - self.received.get("sensors/imu", -math.inf)
+            silent = time.monotonic() - self.imu_wall
             if silent > self.s.stale_ms / 1e3 and (self.commanding or not self.holding):
                 self.hold(f"no sensors/imu for more than {self.s.stale_ms:.0f} ms")
 

@@ -14,6 +14,7 @@ import numpy as np
 from numba import njit
 from scipy import ndimage
 
+from services.common.dda import dda_axis
 from services.nbv.view_sphere import wrap
 
 OCCUPIED = 2
@@ -36,15 +37,10 @@ def segment_free(free: np.ndarray, ax: float, ay: float, bx: float, by: float) -
     sampling points along the segment can step over the corner of an obstacle."""
     nx, ny = free.shape
     i, j = math.floor(ax), math.floor(ay)
-    i_end, j_end = math.floor(bx), math.floor(by)
-    dx, dy = bx - ax, by - ay
-    si = 1 if dx > 0 else -1
-    sj = 1 if dy > 0 else -1
     # the segment's parameter t ∈ [0, 1] at the next cell boundary along x, y, and per cell
-    tdx = abs(1.0 / dx) if dx != 0 else math.inf
-    tdy = abs(1.0 / dy) if dy != 0 else math.inf
-    tx = ((i + 1 - ax) if dx > 0 else (ax - i)) * tdx if dx != 0 else math.inf
-    ty = ((j + 1 - ay) if dy > 0 else (ay - j)) * tdy if dy != 0 else math.inf
+    si, tx, tdx = dda_axis(ax, bx - ax, 1.0, i)
+    sj, ty, tdy = dda_axis(ay, by - ay, 1.0, j)
+    i_end, j_end = math.floor(bx), math.floor(by)
     for _ in range(abs(i_end - i) + abs(j_end - j) + 1):
         if i < 0 or j < 0 or i >= nx or j >= ny or not free[i, j]:
             return False
@@ -177,18 +173,13 @@ class PathPlanner:
                 bounds.setHigh(i, float(hi[i]))
             space.setBounds(bounds)
             si = ob.SpaceInformation(space)
-            clearance, origin, cell, need = (
-                self.floor.clearance,
-                self.floor.origin,
-                self.floor.cell,
-                self.need,
-            )
-            nx, ny = clearance.shape
+            free, origin, cell = self.free, self.floor.origin, self.floor.cell
+            nx, ny = free.shape
 
             def valid(state) -> bool:
                 i = int((state.getX() - origin[0]) / cell)
                 j = int((state.getY() - origin[1]) / cell)
-                return bool(0 <= i < nx and 0 <= j < ny and clearance[i, j] >= need)
+                return bool(0 <= i < nx and 0 <= j < ny and free[i, j])
 
             segment_free = self._segment_free
 
@@ -205,7 +196,7 @@ class PathPlanner:
             self._motions = ExactMotions(si)  # kept alive here: OMPL holds no reference
             si.setMotionValidator(self._motions)
             si.setup()
-            self._si, self._space, self._valid = si, space, valid
+            self._si, self._space = si, space
         return self._si
 
     def _rrt(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray | None:

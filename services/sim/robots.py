@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from services.common.robots import JOINT_SPEED
+
 ROBOTS_DIR = Path(__file__).parent / "robots"
 
 #: Joint names of the planar base, in the order (x, y, yaw).
@@ -57,7 +59,7 @@ ARMAR6 = RobotInfo(
     acc_lin=0.5,
     acc_rot=1.0,
     footprint_radius=0.45,
-    joint_speed={"torso_lift": 0.1, "neck_yaw": 2.0, "neck_pitch": 2.0},
+    joint_speed=JOINT_SPEED["armar6"],
     home={"torso_lift": 0.2, "neck_yaw": 0.0, "neck_pitch": 0.35},
 )
 
@@ -75,16 +77,7 @@ ARMAR3 = RobotInfo(
     acc_lin=0.5,
     acc_rot=1.0,
     footprint_radius=0.4,
-    joint_speed={
-        "hip_yaw": 1.0,
-        "neck_lower_pitch": 2.0,
-        "neck_roll": 2.0,
-        "neck_yaw": 2.0,
-        "neck_upper_pitch": 2.0,
-        "eye_tilt": 5.0,
-        "eye_pan_left": 5.0,
-        "eye_pan_right": 5.0,
-    },
+    joint_speed=JOINT_SPEED["armar3"],
     home={"neck_lower_pitch": 0.2, "neck_upper_pitch": 0.15},
 )
 
