@@ -117,6 +117,9 @@ class GazeNode:
         self.commanding = False
         self.seq = 0
         self.steps = 0
+        self.imu_seq: int | None = None  # the last IMU sample's seq: gaps are skipped samples
+        self.imu_skipped = 0
+        node.metrics.gauge("imu_skipped", 0)
         k = node.keys
         self.out_head = node.publisher(k.cmd_head())
         self.out_ego = node.publisher(k.egosphere())
@@ -225,6 +228,10 @@ class GazeNode:
     def on_imu(self, imu: ImuSample) -> None:
         """One control step per IMU sample."""
         self.imu_wall = time.monotonic()
+        if self.imu_seq is not None and imu.seq > self.imu_seq + 1:  # stale ones, not taken
+            self.imu_skipped += imu.seq - self.imu_seq - 1
+            self.node.metrics.gauge("imu_skipped", self.imu_skipped)
+        self.imu_seq = imu.seq
         self.gyro_history.append((imu.stamp, np.asarray(imu.angular_velocity, float)))
         js, base = self.joint_state, self.base
         # inputs' ages on the sample clock (sim or wall time alike, lockstep included)
