@@ -8,14 +8,19 @@ model, or a whole episode.
   InlierIndex = mean over ground-truth segments (Eq. 3.11);
 - OverlappingIndex (Eq. 3.12): the Jaccard index of G_i and the points ψ explains (within
   ``delta`` of its surface, inside its OBB), best over ψ, averaged;
-- support graph precision / recall / F1 (Eq. 4.14-4.16) after mapping primitives to bodies
-  (each to the body most of its explained points belong to); edges inside one body dropped,
-  duplicates merged; both graphs restricted to the bodies in the region of interest.
+- support graph precision / recall / F1 (Eq. 4.14-4.16) on the edges, after mapping
+  primitives to bodies (each to the body more than half of its explained points belong to).
+  Every perceived edge counts: one with an end that maps to no body, or with both ends on one
+  body, is a false positive; edges between the same two bodies count once; edges between
+  bodies outside the region of interest are not judged;
+- how the primitives map: ``vertex_precision`` (share of primitives that map to a body),
+  ``segments_per_body`` (over-segmentation) and ``bodies_merged`` (primitives with at least
+  ``MERGED_SHARE`` of their explained points on each of two or more bodies).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,6 +31,8 @@ DELTA = 0.015
 #: margin of the OBB containment test of Eq. 3.8 (m): depth noise puts surface points a few
 #: millimetres outside a face's box
 OBB_MARGIN = 0.01
+#: a primitive with at least this share of its explained points on each of two bodies merges them
+MERGED_SHARE = 0.2
 
 
 def labelled_points(
@@ -108,6 +115,13 @@ class Scores:
     overlapping_index: float
     match: dict[str, int]  # ground-truth body → ψ(G_i) (Eq. 3.10)
     bodies: dict[int, str]  # primitive id → body it maps to
+    vertex_precision: float = 0.0  # primitives that map to a body / all primitives
+    segments_per_body: dict[str, int] = field(default_factory=dict)
+    merged: dict[int, list[str]] = field(default_factory=dict)  # primitive id → bodies it spans
+
+    @property
+    def bodies_merged(self) -> int:
+        return len(self.merged)
 
 
 def score_primitives(
@@ -120,35 +134,43 @@ def score_primitives(
     labelled ground-truth points of the bodies in ``scope`` (default: all), and the
     primitive ↔ body maps (over all bodies)."""
     names = list(segments)
-    if not names:
-        return Scores(0.0, 0.0, {}, {})
+    if not names or not primitives:
+        return Scores(0.0, 0.0, {}, {}, 0.0 if primitives else 1.0)
     cloud = np.concatenate([segments[n] for n in names])
     owner = np.concatenate([np.full(len(segments[n]), i) for i, n in enumerate(names)])
     covered = np.zeros((len(names), len(primitives)))
     jaccard = np.zeros((len(names), len(primitives)))
     bodies: dict[int, str] = {}
+    merged: dict[int, list[str]] = {}
     for j, p in enumerate(primitives):
         mask = explained(p, cloud, delta)
         counts = np.bincount(owner[mask], minlength=len(names))
         if mask.sum():
             best = int(np.argmax(counts))
-            if counts[best] >= 0.5 * mask.sum():
+            if counts[best] > 0.5 * mask.sum():
                 bodies[p.id] = names[best]
+            spanned = np.flatnonzero(counts >= MERGED_SHARE * mask.sum())
+            if len(spanned) >= 2:
+                merged[p.id] = sorted(names[i] for i in spanned)
         for i, n in enumerate(names):
             covered[i, j] = inlier(segments[n], p)
             union = len(segments[n]) + mask.sum() - counts[i]
             jaccard[i, j] = counts[i] / union if union else 0.0
-    if not primitives:
-        return Scores(0.0, 0.0, {}, {})
     match = {n: primitives[int(np.argmax(covered[i]))].id for i, n in enumerate(names)}
     rows = [i for i, n in enumerate(names) if scope is None or n in scope] or list(
         range(len(names))
     )
+    per_body: dict[str, int] = {}
+    for b in bodies.values():
+        per_body[b] = per_body.get(b, 0) + 1
     return Scores(
         inlier_index=float(covered[rows].max(axis=1).mean()),
         overlapping_index=float(jaccard[rows].max(axis=1).mean()),
         match=match,
         bodies=bodies,
+        vertex_precision=len(bodies) / len(primitives),
+        segments_per_body=dict(sorted(per_body.items())),
+        merged=merged,
     )
 
 
@@ -171,8 +193,16 @@ class SupportScores:
     precision: float
     recall: float
     f1: float
-    edges: list[tuple[str, str]]  # perceived, mapped to bodies
+    edges: list[tuple[str, str]]  # every judged perceived edge, unmapped ends as '#<id>'
     vertices: list[str]
+    false_positives: list[tuple[str, str]] = field(default_factory=list)
+
+
+def edge_names(edges: list[tuple[int, int]], bodies: dict[int, str]) -> list[tuple[str, str]]:
+    """Perceived edges (supporter id, supported id) as body names; an end that maps to no
+    body is named '#<primitive id>'. Edges between the same two bodies are listed once."""
+    out = {(bodies.get(s, f"#{s}"), bodies.get(t, f"#{t}")) for s, t in edges}
+    return sorted(out)
 
 
 def score_support(
@@ -181,19 +211,25 @@ def score_support(
     bodies: dict[int, str],
     scope: set[str] | None = None,
 ) -> SupportScores:
-    """Eq. 4.14-4.16 on bodies: perceived edges (supporter id, supported id) mapped through
-    ``bodies``; vertices and edges outside ``scope`` (default: the ROI's bodies) ignored."""
+    """Eq. 4.14-4.16 on the support edges: perceived edges (supporter id, supported id) mapped
+    through ``bodies``. Every edge counts: an end that maps to no body, or both ends on one
+    body, make it a false positive. Edges whose mapped ends lie outside ``scope`` (default:
+    the ROI's bodies) are not judged, and neither are ground-truth edges outside it. With no
+    edge to find and none perceived the graph is right (1.0)."""
     scope = bodies_in_roi(gt) if scope is None else scope
-    v_gt = set(scope)
     e_gt = {(a, b) for a, b in gt.support_edges if a in scope and b in scope}
-    v = {b for b in bodies.values() if b in scope}
-    e = set()
-    for s, t in edges:
-        a, b = bodies.get(s), bodies.get(t)
-        if a and b and a != b and a in scope and b in scope:
-            e.add((a, b))
-    tp = len(v & v_gt) + len(e & e_gt)
-    precision = tp / (len(v) + len(e)) if v or e else 0.0
-    recall = tp / (len(v_gt) + len(e_gt)) if v_gt or e_gt else 0.0
+    judged = set()
+    for a, b in edge_names(edges, bodies):
+        named = [n for n in (a, b) if not n.startswith("#")]
+        if any(n not in scope for n in named):
+            continue  # an edge of the scene outside the region of interest
+        judged.add((a, b))
+    tp = len(judged & e_gt)
+    if not judged and not e_gt:
+        precision = recall = 1.0
+    else:
+        precision = tp / len(judged) if judged else 0.0
+        recall = tp / len(e_gt) if e_gt else 0.0
     f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
-    return SupportScores(precision, recall, f1, sorted(e), sorted(v))
+    vertices = sorted({b for b in bodies.values() if b in scope})
+    return SupportScores(precision, recall, f1, sorted(judged), vertices, sorted(judged - e_gt))

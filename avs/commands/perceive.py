@@ -1,6 +1,9 @@
 """``avs perceive --scene S --json``: render one view of a scene (by default the robot stands at
-robot_start and looks at the centre of the scene's roi), run perception on it, and score the
-result against the ground truth (InlierIndex, OverlappingIndex, support-graph F1)."""
+robot_start and looks at the centre of the scene's roi, turning in place first where its neck
+cannot reach that far), run perception on it, and score the result against the ground truth
+(InlierIndex, OverlappingIndex, support-edge precision / recall / F1 with every perceived edge
+counted, how primitives map to bodies, and ``unowned_depth_fraction``: the share of in-range
+depth returns that belong to no geom, which must be 0 for a physical sensor)."""
 
 from __future__ import annotations
 
@@ -70,12 +73,15 @@ def _perceive(args: argparse.Namespace) -> int:
     if args.neck is not None:
         pan, tilt = AIM_JOINTS[args.robot]
         world.place(**{pan: args.neck[0], tilt: args.neck[1]})
+    elif args.base is None:
+        world.face(look_target(world))
     else:
         world.look_at(look_target(world))
     camera = world.robot.default_cameras[0]
     renderer = CameraRenderer(world.model, 640, 480)
     rng = np.random.default_rng(args.seed) if args.noise == "on" else None
     frame, gt = capture.view(world, renderer, camera, rng)
+    unowned = capture.unowned_depth_fraction(world, renderer, camera, frame.depth)
     renderer.close()
     perception = Perception()
     result = perception.perceive(frame.depth, frame.rgb, frame.intrinsics, frame.T_world_camera)
@@ -96,6 +102,12 @@ def _perceive(args: argparse.Namespace) -> int:
         "support_recall": support.recall,
         "support_f1": support.f1,
         "support_edges": [list(e) for e in support.edges],
+        "false_positive_edges": [list(e) for e in support.false_positives],
+        "vertex_precision": scores.vertex_precision,
+        "segments_per_body": scores.segments_per_body,
+        "bodies_merged": scores.bodies_merged,
+        "merged_primitives": {str(k): v for k, v in sorted(scores.merged.items())},
+        "unowned_depth_fraction": unowned,
         "unstable": sorted({scores.bodies.get(i, f"#{i}") for i in obs.unstable_ids}),
         "primitive_bodies": {str(k): v for k, v in sorted(scores.bodies.items())},
         "timings_ms": result.timings_ms,

@@ -60,6 +60,16 @@ def segmentation(
     return labels, np.where(ids >= 0, lookup[np.maximum(ids, 0)], -1).astype(np.int32)
 
 
+def unowned_depth_fraction(
+    world: World, renderer: CameraRenderer, camera: str, depth: np.ndarray
+) -> float:
+    """Share of the depth returns (depth > 0) on pixels no geom covers at the current state: a
+    sanity figure, 0 when the camera sees physical geometry only."""
+    ids = renderer.segmentation(world.data, world.cameras[camera])
+    returns = np.asarray(depth) > 0
+    return float((returns & (ids < 0)).sum() / max(1, returns.sum()))
+
+
 def ground_truth_message(
     world: World,
     edges: list[tuple[str, str]],

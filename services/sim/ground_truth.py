@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from services.sim.scene import SceneInfo, owner_name
+from services.sim.scene import SceneInfo, body_id, owner_name
 from services.sim.world import World
 
 MOVE_TOLERANCE = 0.01  # m
@@ -89,7 +89,7 @@ def objects(world: World) -> list[GroundTruthObject]:
             pose = _pose(d.geom_xmat[g].reshape(3, 3), d.geom_xpos[g])
             size = 2 * _geom_half_extents(m, g)
         else:
-            b = m.body(name).id
+            b = body_id(m, name)
             R, p = d.xmat[b].reshape(3, 3), d.xpos[b]
             lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
             for g in geoms:

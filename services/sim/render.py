@@ -25,6 +25,42 @@ def intrinsics(model: mujoco.MjModel, camera: int, width: int, height: int) -> C
     return CameraIntrinsics.from_fov(width, height, float(model.cam_fovy[camera]))
 
 
+#: what a sensor sees: bodies and world geometry, never decorations (labels, frames, lights,
+#: cameras, contact points, ...)
+SENSOR_CATEGORIES = mujoco.mjtCatBit.mjCAT_STATIC | mujoco.mjtCatBit.mjCAT_DYNAMIC
+
+
+def sensor_option() -> mujoco.MjvOption:
+    """Visualisation options of a physical sensor: geoms of the default visible groups only.
+    Sites are markers (roi, robot_start, poi_*), tendons and joints are abstractions: none of
+    them is drawn, whatever a scene's styling."""
+    option = mujoco.MjvOption()
+    option.sitegroup[:] = 0
+    option.tendongroup[:] = 0
+    option.flexgroup[:] = 0
+    option.skingroup[:] = 1
+    for flag in (
+        mujoco.mjtVisFlag.mjVIS_TENDON,
+        mujoco.mjtVisFlag.mjVIS_JOINT,
+        mujoco.mjtVisFlag.mjVIS_CAMERA,
+        mujoco.mjtVisFlag.mjVIS_LIGHT,
+        mujoco.mjtVisFlag.mjVIS_CONTACTPOINT,
+        mujoco.mjtVisFlag.mjVIS_CONTACTFORCE,
+        mujoco.mjtVisFlag.mjVIS_COM,
+        mujoco.mjtVisFlag.mjVIS_INERTIA,
+        mujoco.mjtVisFlag.mjVIS_ACTUATOR,
+        mujoco.mjtVisFlag.mjVIS_CONSTRAINT,
+        mujoco.mjtVisFlag.mjVIS_RANGEFINDER,
+        mujoco.mjtVisFlag.mjVIS_PERTFORCE,
+        mujoco.mjtVisFlag.mjVIS_PERTOBJ,
+        mujoco.mjtVisFlag.mjVIS_TRANSPARENT,
+    ):
+        option.flags[flag] = 0
+    option.frame = mujoco.mjtFrame.mjFRAME_NONE
+    option.label = mujoco.mjtLabel.mjLABEL_NONE
+    return option
+
+
 class CameraRenderer:
     """Offscreen renderer of one image size; shadows off by default (4× faster on Mesa)."""
 
@@ -38,7 +74,7 @@ class CameraRenderer:
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._context)
         self._context.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
         self._scene = mujoco.MjvScene(model, maxgeom=10_000)
-        self._option = mujoco.MjvOption()
+        self._option = sensor_option()
         self._camera = mujoco.MjvCamera()
         self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self._perturb = mujoco.MjvPerturb()
@@ -59,7 +95,7 @@ class CameraRenderer:
             self._option,
             self._perturb,
             self._camera,
-            mujoco.mjtCatBit.mjCAT_ALL,
+            SENSOR_CATEGORIES,
             self._scene,
         )
         self._scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = self.shadows

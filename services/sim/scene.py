@@ -149,23 +149,7 @@ def _scene_facts(path: Path, model: mujoco.MjModel) -> SceneInfo:
             boxes[box] = (data.site_xpos[i] - half, data.site_xpos[i] + half)
     roi = boxes.get("roi")
     pois = {n: data.site_xpos[i].copy() for i, n in enumerate(names) if n.startswith("poi_")}
-    objects, statics = [], []
-    for b in range(1, model.nbody):
-        name = model.body(b).name
-        if not name:
-            continue
-        if model.body_weldid[b] == 0 and model.body_parentid[b] == 0:
-            statics.append(name)
-        elif (
-            model.body_jntnum[b]
-            and model.jnt_type[model.body_jntadr[b]] == mujoco.mjtJoint.mjJNT_FREE
-        ):
-            objects.append(name)
-    statics = [
-        model.geom(g).name
-        for g in range(model.ngeom)
-        if model.geom_bodyid[g] == 0 and model.geom(g).name
-    ] + statics
+    objects, statics = vertices(model)
     return SceneInfo(
         name=path.stem,
         path=path,
@@ -177,6 +161,37 @@ def _scene_facts(path: Path, model: mujoco.MjModel) -> SceneInfo:
         objects=objects,
         statics=statics,
     )
+
+
+def _visible(model: mujoco.MjModel, geom: int) -> bool:
+    """Drawn by a camera: in a default-visible group (0-2) and not fully transparent."""
+    return model.geom_group[geom] < 3 and model.geom_rgba[geom][3] > 0
+
+
+def vertices(model: mujoco.MjModel) -> tuple[list[str], list[str]]:
+    """(objects, statics): the free bodies, and the static parts (visible world geoms, then
+    static bodies below the world), each by the name ``owner_name`` gives it. The robot's
+    bodies are neither."""
+    objects, statics = [], []
+    has_geoms = set(model.body_rootid[model.geom_bodyid].tolist())
+    for b in range(1, model.nbody):
+        name = model.body(b).name
+        if name.startswith(ROBOT_PREFIX) or model.body_parentid[b] != 0:
+            continue
+        if model.body_weldid[b] == 0:
+            if b in has_geoms:
+                statics.append(name or f"body_{b}")
+        elif (
+            model.body_jntnum[b]
+            and model.jnt_type[model.body_jntadr[b]] == mujoco.mjtJoint.mjJNT_FREE
+        ):
+            objects.append(name)
+    world = [
+        owner_name(model, g)
+        for g in range(model.ngeom)
+        if model.geom_bodyid[g] == 0 and _visible(model, g)
+    ]
+    return objects, world + statics
 
 
 def load_world_model(
@@ -204,6 +219,7 @@ def load_world_model(
     spec.visual.global_.offwidth = max(offscreen[0], spec.visual.global_.offwidth)
     spec.visual.global_.offheight = max(offscreen[1], spec.visual.global_.offheight)
     model = _compile(path, spec)
+    info.objects, info.statics = vertices(model)
     return model, info
 
 
@@ -219,16 +235,28 @@ def robot_joint_names(model: mujoco.MjModel) -> list[str]:
 
 
 def owner_name(model: mujoco.MjModel, geom: int) -> str:
-    """The name a geom answers to in the ground truth: its top named body below the world
-    (the object or static body it belongs to), its own name for world geoms, 'robot' for the
-    robot's geoms, '' when unnamed."""
+    """The name a geom answers to in the ground truth: its top body below the world (the
+    object or static body it belongs to), its own name for world geoms, 'robot' for the
+    robot's geoms. Unnamed world geoms and static bodies are ``geom_<id>`` and ``body_<id>``,
+    so that a scene needs no names for its furniture."""
     body = int(model.geom_bodyid[geom])
     if body == 0:
-        return model.geom(geom).name
-    while model.body_parentid[body] != 0:
-        body = int(model.body_parentid[body])
+        return model.geom(geom).name or f"geom_{geom}"
+    body = int(model.body_rootid[body])
     name = model.body(body).name
-    return "robot" if name.startswith(ROBOT_PREFIX) else name
+    if name.startswith(ROBOT_PREFIX):
+        return "robot"
+    return name or f"body_{body}"
+
+
+def body_id(model: mujoco.MjModel, name: str) -> int:
+    """The id of the body ``owner_name`` calls ``name``."""
+    try:
+        return model.body(name).id
+    except KeyError:
+        if name.startswith("body_") and name[5:].isdigit():
+            return int(name[5:])
+        raise
 
 
 def check_start_overlaps(path: Path, model: mujoco.MjModel, data: mujoco.MjData) -> None:

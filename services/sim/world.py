@@ -304,8 +304,10 @@ class World:
         d.qvel[:] = 0.0
         mujoco.mj_forward(self.model, d)
 
-    def look_at(self, target: np.ndarray, camera: str | None = None) -> None:
-        """Turn the head so the camera's optical axis passes through ``target`` (world)."""
+    def look_at(self, target: np.ndarray, camera: str | None = None) -> float:
+        """Turn the head so the camera's optical axis passes through ``target`` (world), as
+        far as the joints' ranges allow; returns the angle (rad) left between the axis and
+        the direction to the target."""
         camera = camera or self.robot.default_cameras[0]
         pan, tilt = AIM_JOINTS[self.robot.name]
         for _ in range(8):
@@ -316,6 +318,17 @@ class World:
                 break
             q = dict(zip(*self.joint_state()[:2], strict=True))
             self.place(**{pan: q[pan] + dpan, tilt: q[tilt] + dtilt})
+        T = self.T_world_camera(camera)
+        to = np.asarray(target, float) - T[:3, 3]
+        return math.acos(min(1.0, float(T[:3, 2] @ to / max(np.linalg.norm(to), 1e-9))))
+
+    def face(self, target: np.ndarray, camera: str | None = None) -> None:
+        """Look at ``target``; where the neck cannot turn that far, first turn the platform in
+        place toward it (a start that faces away still sees the scene)."""
+        if self.look_at(target, camera) > math.radians(1.0):
+            x, y, _ = self.base_pose()[:3]
+            self.place(base=(x, y, math.atan2(target[1] - y, target[0] - x)))
+            self.look_at(target, camera)
 
     # -- readouts -----------------------------------------------------------------------------
 

@@ -9,7 +9,15 @@ import numpy as np
 import pytest
 
 from avs import evaluation
-from schemas import CameraIntrinsics, GroundTruth, GroundTruthObject, Obb, PlaneModel, Primitive
+from schemas import (
+    BoxModel,
+    CameraIntrinsics,
+    GroundTruth,
+    GroundTruthObject,
+    Obb,
+    PlaneModel,
+    Primitive,
+)
 from services.perception import ransac
 from services.perception.obb import Box, intersect, plane_box
 from services.perception.pipeline import Perception
@@ -139,12 +147,63 @@ def _gt(edges):
     )
 
 
-def test_support_f1_follows_eq_4_14_to_4_16():
+def test_support_f1_follows_eq_4_14_to_4_16_and_every_edge_counts():
     gt = _gt([("table", "a"), ("a", "b"), ("table", "c")])
     bodies = {0: "table", 1: "a", 2: "b", 3: "a", 4: "c"}  # 1 and 3 are two faces of a
-    perfect = evaluation.score_support(gt, [(0, 1), (3, 2), (0, 4), (1, 3)], bodies)
-    assert (perfect.precision, perfect.recall, perfect.f1) == (1.0, 1.0, 1.0)  # 1→3 dropped
+    perfect = evaluation.score_support(gt, [(0, 1), (3, 2), (0, 4), (0, 3)], bodies)
+    assert (perfect.precision, perfect.recall, perfect.f1) == (1.0, 1.0, 1.0)  # 0→1, 0→3 once
+    # an edge inside one body is a false positive, not dropped
+    inner = evaluation.score_support(gt, [(0, 1), (3, 2), (0, 4), (1, 3)], bodies)
+    assert inner.precision == pytest.approx(3 / 4) and inner.recall == 1.0
+    assert inner.false_positives == [("a", "a")]
     wrong = evaluation.score_support(gt, [(0, 1), (2, 3)], {0: "table", 1: "a", 2: "b", 3: "a"})
-    # vertices table, a, b (3 of 4 true); edges: table→a true, b→a false
-    assert wrong.precision == pytest.approx((3 + 1) / (3 + 2))
-    assert wrong.recall == pytest.approx((3 + 1) / (4 + 3))
+    # edges: table→a true, b→a false; table→c and a→b missing
+    assert wrong.precision == pytest.approx(1 / 2)
+    assert wrong.recall == pytest.approx(1 / 3)
+    assert wrong.f1 == pytest.approx(2 * 0.5 * (1 / 3) / (0.5 + 1 / 3))
+
+
+def test_spurious_primitives_and_edges_make_precision_fall():
+    """A perfect observation scores 1.0; two spurious primitives that map to no body, with an
+    edge each, are two false positives (the scoring that dropped them said 1.0)."""
+    gt = _gt([("table", "a"), ("a", "b"), ("table", "c")])
+    bodies = {0: "table", 1: "a", 2: "b", 3: "c"}
+    edges = [(0, 1), (1, 2), (0, 3)]
+    assert evaluation.score_support(gt, edges, bodies).f1 == 1.0
+    spurious = evaluation.score_support(gt, [*edges, (0, 7), (7, 8)], bodies)  # 7, 8: no body
+    assert spurious.precision == pytest.approx(3 / 5) and spurious.recall == 1.0
+    assert spurious.f1 == pytest.approx(0.75)
+    assert spurious.false_positives == [("#7", "#8"), ("table", "#7")]
+    assert evaluation.edge_names([(0, 7)], bodies) == [("table", "#7")]
+    # edges that touch a body outside the region of interest are not judged
+    outside = evaluation.score_support(gt, [*edges, (0, 7), (7, 1)], bodies, scope={"a", "b"})
+    assert outside.edges == [("#7", "a"), ("a", "b")]
+    # nothing to find and nothing found is right; something found where nothing is, is not
+    empty = _gt([])
+    assert evaluation.score_support(empty, [], bodies).f1 == 1.0
+    assert evaluation.score_support(empty, [(0, 1)], bodies).f1 == 0.0
+
+
+def test_vertex_scores_see_unmapped_split_and_merged_primitives():
+    grid = np.stack(np.meshgrid(np.linspace(-0.5, 0.5, 21), np.linspace(-0.5, 0.5, 21)), -1)
+    floor = np.column_stack([grid.reshape(-1, 2), np.zeros(441)])
+    shelf = floor + np.array([0, 0, 0.5])
+    segments = {"floor": floor, "shelf": shelf}
+    halves = [_plane_primitive(0, 0.0, 1.2), _plane_primitive(1, 0.5, 1.2)]
+    good = evaluation.score_primitives(segments, halves)
+    assert good.vertex_precision == 1.0 and good.bodies_merged == 0
+    assert good.segments_per_body == {"floor": 1, "shelf": 1}
+    phantom = _plane_primitive(2, 1.5, 1.2)  # explains no ground-truth point
+    both = Primitive(  # one box around floor and shelf: half its points on each
+        id=3,
+        model=BoxModel(center=np.array([0, 0, 0.25]), rotation=np.eye(3),
+                       extent=np.array([1.2, 1.2, 0.5])),
+        obb=Obb(center=np.array([0, 0, 0.25]), rotation=np.eye(3),
+                extent=np.array([1.2, 1.2, 0.5])),
+        inlier_count=100, inliers=np.zeros((0, 3), np.float32),
+    )  # fmt: skip
+    split = [*halves, _plane_primitive(4, 0.0, 1.2), phantom, both]
+    bad = evaluation.score_primitives(segments, split)
+    assert bad.vertex_precision == pytest.approx(3 / 5)  # the phantom and the box map nowhere
+    assert bad.segments_per_body == {"floor": 2, "shelf": 1}
+    assert bad.bodies_merged == 1 and bad.merged == {3: ["floor", "shelf"]}
