@@ -225,3 +225,95 @@ def score_spheres(X, N, subset, centers, radii, dist, cos_min):
             if abs(N[s, 0] * vx + N[s, 1] * vy + N[s, 2] * vz) / r > cos_min:
                 out[h] += 1
     return out
+
+
+@njit(cache=True, nogil=True)
+def colour_edges(
+    colours: np.ndarray,
+    normals: np.ndarray,
+    valid: np.ndarray,
+    cos_same: float,
+    threshold: float,
+    chroma_threshold: float,
+    dark: float,
+) -> np.ndarray:
+    """(h, w) bool: material boundaries between a pixel and its right or lower neighbour.
+    Either their chromaticity (rgb / (r + g + b)) differs by more than ``chroma_threshold``
+    (shading scales a colour and keeps its chromaticity; pixels darker than ``dark`` have
+    none to speak of), or, on one surface orientation (normals within ``cos_same``), their
+    colour differs by more than ``threshold`` (0-255 RGB): across a crease shading alone
+    changes the brightness, and that marks nothing. Where a normal is unknown (the image's
+    rim) the surface is taken as one, so that an edge runs to the border."""
+    h, w = valid.shape
+    edge = np.zeros((h, w), np.bool_)
+    t2, c2 = threshold * threshold, chroma_threshold * chroma_threshold
+    for r in range(h):
+        for c in range(w):
+            if not valid[r, c]:
+                continue
+            a0, a1, a2 = float(colours[r, c, 0]), float(colours[r, c, 1]), float(colours[r, c, 2])
+            sa = a0 + a1 + a2
+            for dr, dc in ((0, 1), (1, 0)):
+                r2, c2_ = r + dr, c + dc
+                if r2 >= h or c2_ >= w or not valid[r2, c2_]:
+                    continue
+                b0 = float(colours[r2, c2_, 0])
+                b1 = float(colours[r2, c2_, 1])
+                b2 = float(colours[r2, c2_, 2])
+                sb = b0 + b1 + b2
+                marked = False
+                if sa > dark and sb > dark:
+                    x0, x1, x2 = a0 / sa - b0 / sb, a1 / sa - b1 / sb, a2 / sa - b2 / sb
+                    marked = x0 * x0 + x1 * x1 + x2 * x2 > c2
+                if not marked:
+                    dot = (
+                        normals[r, c, 0] * normals[r2, c2_, 0]
+                        + normals[r, c, 1] * normals[r2, c2_, 1]
+                        + normals[r, c, 2] * normals[r2, c2_, 2]
+                    )
+                    na = abs(normals[r, c, 0]) + abs(normals[r, c, 1]) + abs(normals[r, c, 2])
+                    nb = (
+                        abs(normals[r2, c2_, 0])
+                        + abs(normals[r2, c2_, 1])
+                        + abs(normals[r2, c2_, 2])
+                    )
+                    unknown = na == 0 or nb == 0
+                    if dot >= cos_same or unknown:
+                        y0, y1, y2 = a0 - b0, a1 - b1, a2 - b2
+                        marked = y0 * y0 + y1 * y1 + y2 * y2 > t2
+                if marked:
+                    edge[r, c] = True
+                    edge[r2, c2_] = True
+    return edge
+
+
+@njit(cache=True, nogil=True)
+def grow_labels(labels: np.ndarray, region: np.ndarray) -> np.ndarray:
+    """Give every pixel of ``region`` (h, w; -1 outside any) that has no label (-1) the label
+    of the nearest labelled pixel of the same region, by breadth-first growth over
+    4-neighbours (multi-source: every labelled pixel starts at once)."""
+    h, w = labels.shape
+    out = labels.copy()
+    queue = np.empty(h * w, np.int64)
+    head = tail = 0
+    for i in range(h * w):
+        if out.flat[i] >= 0:
+            queue[tail] = i
+            tail += 1
+    while head < tail:
+        i = queue[head]
+        head += 1
+        r, c = i // w, i % w
+        for dr, dc in ((0, 1), (1, 0), (0, -1), (-1, 0)):
+            r2, c2 = r + dr, c + dc
+            if (
+                0 <= r2 < h
+                and 0 <= c2 < w
+                and out[r2, c2] < 0
+                and region[r2, c2] >= 0
+                and region[r2, c2] == region[r, c]
+            ):
+                out[r2, c2] = out[r, c]
+                queue[tail] = r2 * w + c2
+                tail += 1
+    return out
