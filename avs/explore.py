@@ -5,9 +5,10 @@ on a loopback router, the sim in lockstep, and this orchestrator stepping it:
     → render → perception → scene memory (fuse, integrate) → score against the ground truth
 
 until the planner stops (u(v̂) below quality, or n views). The first view is taken where the
-robot starts, looking at the roi's centre. Per view: support-graph precision / recall / F1
-(Eq. 4.14-4.16), unknown voxels in the roi, path cost and its sum, InlierIndex and
-OverlappingIndex (Eq. 3.11, 3.12), planning time, platform pose."""
+robot starts, looking at the roi's centre (turning in place first where the neck cannot).
+Per view: support-graph precision / recall / F1 (Eq. 4.14-4.16), unknown voxels in the roi,
+path cost and its sum, InlierIndex and OverlappingIndex (Eq. 3.11, 3.12), planning time,
+platform pose."""
 
 from __future__ import annotations
 
@@ -97,6 +98,7 @@ class EpisodeResult:
     seed: int
     views: list[ViewRecord] = field(default_factory=list)
     terminated_by: str = ""
+    termination_detail: str = ""  # why, in words (no_candidates)
     final_support_edges: list[list[str]] = field(default_factory=list)
     roi: list[list[float]] = field(default_factory=list)
     centre: list[float] = field(default_factory=list)
@@ -116,8 +118,28 @@ def _free_port(host: str = "127.0.0.1") -> int:
         return s.getsockname()[1]
 
 
-def scene_facts(scene: str, robot: str) -> tuple:
-    """(roi min, roi max, the roi's centre, robot start, points of interest (m, 3))."""
+@dataclass
+class SceneFacts:
+    """What the orchestrator needs of a scene: its roi (or a box around its objects), the
+    view spheres' centres, where the robot starts, and the map's bounds (avs/bounds.py)."""
+
+    roi_min: np.ndarray
+    roi_max: np.ndarray
+    centre: np.ndarray  # the roi's centre: the first view looks at it
+    start: tuple[float, float, float]
+    pois: np.ndarray  # (m, 3) points of interest
+    workspace: tuple[np.ndarray, np.ndarray] | None
+    map_min: np.ndarray
+    map_max: np.ndarray
+
+    @property
+    def centres(self) -> np.ndarray:
+        """The view spheres' centres: the points of interest if the scene has them (4.5.3)."""
+        return self.pois if len(self.pois) else self.centre[None, :]
+
+
+def scene_facts(scene: str, robot: str, radius: float = 1.5) -> SceneFacts:
+    from avs.bounds import map_bounds
     from avs.commands.perceive import look_target
     from services.sim.robots import ROBOTS
     from services.sim.world import World
@@ -125,18 +147,17 @@ def scene_facts(scene: str, robot: str) -> tuple:
     world = World(scene, ROBOTS[robot])
     centre = look_target(world)
     if world.info.roi is not None:
-        lo, hi = world.info.roi
+        lo, hi = (np.asarray(v, float) for v in world.info.roi)
     else:
         lo, hi = centre - 1.0, centre + 1.0
     pois = np.array([world.info.pois[k] for k in sorted(world.info.pois)]).reshape(-1, 3)
-    return (
-        np.asarray(lo),
-        np.asarray(hi),
-        centre,
-        tuple(world.info.robot_start),
-        pois,
-        world.info.workspace,
-    )
+    start = tuple(world.info.robot_start)
+    centres = pois if len(pois) else centre[None, :]
+    map_lo, map_hi = map_bounds(
+        (lo, hi), start[:2], centres, radius=radius, footprint=world.robot.footprint_radius,
+        workspace=world.info.workspace,
+    )  # fmt: skip
+    return SceneFacts(lo, hi, centre, start, pois, world.info.workspace, map_lo, map_hi)
 
 
 class Latest:
@@ -173,15 +194,13 @@ class Episode:
         self.progress = progress
         self.keys = Keys(config.robot)
 
-    def _env(self, data_dir: Path, roi_lo, roi_hi, centre, pois, workspace) -> dict[str, str]:
+    def _env(self, data_dir: Path, facts: SceneFacts) -> dict[str, str]:
         c = self.c
-        lo, hi = roi_lo - 1.0, roi_hi + 1.0
-        lo[2], hi[2] = -0.05, max(2.2, hi[2])
-        csv = lambda v: ",".join(f"{x:.4f}" for x in v)  # noqa: E731
+        csv = lambda v: ",".join(f"{x:.4f}" for x in np.ravel(v))  # noqa: E731
         extra = {}
-        if workspace is not None:
-            extra = {"AVS_NBV_WORKSPACE_MIN": csv(workspace[0][:2]),
-                     "AVS_NBV_WORKSPACE_MAX": csv(workspace[1][:2])}  # fmt: skip
+        if facts.workspace is not None:
+            extra = {"AVS_NBV_WORKSPACE_MIN": csv(facts.workspace[0][:2]),
+                     "AVS_NBV_WORKSPACE_MAX": csv(facts.workspace[1][:2])}  # fmt: skip
         return extra | {
             "AVS_SIM_SCENE": c.scene,
             "AVS_SIM_LOCKSTEP": "true",
@@ -189,15 +208,14 @@ class Episode:
             "AVS_SCENE_MEMORY_DATA_DIR": str(data_dir),
             "AVS_SCENE_MEMORY_FUSION": c.fusion,
             "AVS_SCENE_MEMORY_VOXEL": str(c.voxel),
-            "AVS_SCENE_MEMORY_BOUNDS_MIN": csv(lo),
-            "AVS_SCENE_MEMORY_BOUNDS_MAX": csv(hi),
-            "AVS_SCENE_MEMORY_ROI_MIN": csv(roi_lo),
-            "AVS_SCENE_MEMORY_ROI_MAX": csv(roi_hi),
-            # the view spheres: around the points of interest if the scene has them (4.5.3)
-            "AVS_NBV_CENTRE": csv(np.ravel(pois) if len(pois) else centre),
-            "AVS_NBV_FIRST_TARGET": csv(centre),
-            "AVS_NBV_ROI_MIN": csv(roi_lo),
-            "AVS_NBV_ROI_MAX": csv(roi_hi),
+            "AVS_SCENE_MEMORY_BOUNDS_MIN": csv(facts.map_min),
+            "AVS_SCENE_MEMORY_BOUNDS_MAX": csv(facts.map_max),
+            "AVS_SCENE_MEMORY_ROI_MIN": csv(facts.roi_min),
+            "AVS_SCENE_MEMORY_ROI_MAX": csv(facts.roi_max),
+            "AVS_NBV_CENTRE": csv(facts.centres),
+            "AVS_NBV_FIRST_TARGET": csv(facts.centre),
+            "AVS_NBV_ROI_MIN": csv(facts.roi_min),
+            "AVS_NBV_ROI_MAX": csv(facts.roi_max),
             "AVS_NBV_STRATEGY": c.strategy,
             "AVS_NBV_SAMPLING": c.sampling,
             "AVS_NBV_MAX_VIEWS": str(c.views),
@@ -273,7 +291,8 @@ class Episode:
 
     def run(self) -> EpisodeResult:
         c = self.c
-        roi_lo, roi_hi, centre, start, pois, workspace = scene_facts(c.scene, c.robot)
+        facts = scene_facts(c.scene, c.robot)
+        roi_lo, roi_hi = facts.roi_min, facts.roi_max
         c.out.mkdir(parents=True, exist_ok=True)
         data_dir = c.out / "scene_memory"
         shutil.rmtree(data_dir, ignore_errors=True)
@@ -281,13 +300,13 @@ class Episode:
         services = [BY_NAME[n] for n in EPISODE_SERVICES]
         supervisor = Supervisor(
             services, endpoint, c.robot,
-            env=self._env(data_dir, roi_lo, roi_hi, centre, pois, workspace),
+            env=self._env(data_dir, facts),
             restart=False, launch=c.launch, scale=c.scale,
         )  # fmt: skip
         result = EpisodeResult(
             c.scene, c.strategy, c.sampling, c.fusion, c.seed,
             roi=[list(map(float, roi_lo)), list(map(float, roi_hi))],
-            centre=list(map(float, centre)),
+            centre=list(map(float, facts.centre)),
         )  # fmt: skip
         self.supervisor = supervisor
         supervisor.start()
@@ -299,12 +318,12 @@ class Episode:
             conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
             conf.insert_json5("scouting/multicast/enabled", "false")
             with zenoh.open(conf) as session:
-                self._loop(session, result, roi_lo, roi_hi, start)
+                self._loop(session, result, roi_lo, roi_hi)
         finally:
             supervisor.stop()
         return result
 
-    def _loop(self, session, result: EpisodeResult, roi_lo, roi_hi, start) -> None:
+    def _loop(self, session, result: EpisodeResult, roi_lo, roi_hi) -> None:
         c, k = self.c, self.keys
         base = Latest(session, k.base_state(), BasePose)
         joints = Latest(session, k.joints(), JointState)
@@ -326,8 +345,13 @@ class Episode:
             planning_s = time.perf_counter() - t0
             if nbv.terminate:
                 result.terminated_by = "quality" if nbv.reason == "quality" else nbv.reason
+                result.termination_detail = nbv.detail
+                if nbv.detail:
+                    log.warning("the planner stopped (%s): %s", nbv.reason, nbv.detail)
                 break
-            goal, trajectory = "" if view == 0 else f"view-{view}", []
+            # the first view is taken where the robot stands, unless it has to turn first
+            moves = view > 0 or nbv.cost > 0
+            goal, trajectory = f"view-{view}" if moves else "", []
             reached = self._settle(session, base, joints, nbv, goal, trajectory)
             n_frames = frames.count
             self._sim(session, op="render")
@@ -350,7 +374,7 @@ class Episode:
                 gt, [(e.supporter, e.supported) for e in scene.support_edges], scores.bodies
             )
             stats = self._query(session, k.occupancy("stats"), roi, OccupancyStats)
-            cost = 0.0 if view == 0 else float(nbv.cost)
+            cost = float(nbv.cost)
             accumulated += cost
             record = ViewRecord(
                 view, support.precision, support.recall, support.f1, int(stats.unknown),

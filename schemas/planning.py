@@ -54,6 +54,7 @@ class NextBestView(Stamped):
     utility: float
     terminate: bool = False
     reason: Literal["", "quality", "max_views", "no_candidates"] = ""
+    detail: str = Field("", description="why, in words (e.g. why no candidate was reachable)")
     workers: int = Field(1, ge=1, description="nbv instances that evaluated the candidates")
 
 

@@ -74,7 +74,8 @@ def run_episode(config, label: str) -> dict:
     from avs.explore import Episode
 
     result = Episode(config, progress_bar(label)).run().to_json()
-    print(f"  terminated by {result['terminated_by']}", file=sys.stderr, flush=True)
+    detail = f": {result['termination_detail']}" if result.get("termination_detail") else ""
+    print(f"  terminated by {result['terminated_by']}{detail}", file=sys.stderr, flush=True)
     return result
 
 

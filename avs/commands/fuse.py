@@ -88,6 +88,7 @@ def spread(items: list, n: int) -> list:
 def run_fusion(args: argparse.Namespace, progress=None):
     """The fusion run itself; returns (per-view metrics, the memory, the ground truth)."""
     from avs import evaluation
+    from avs.bounds import map_bounds
     from avs.commands.perceive import look_target
     from services.perception.pipeline import Perception, PerceptionConfig, observation
     from services.scene_memory.fusion import FusionConfig
@@ -100,10 +101,19 @@ def run_fusion(args: argparse.Namespace, progress=None):
 
     world = World(args.scene, ROBOTS[args.robot])
     centre = look_target(world)
+    camera = world.robot.default_cameras[0]
+    bases = []
+    for x, y in path_bases(world, args.path, args.views, centre):
+        world.place(base=(x, y, math.atan2(centre[1] - y, centre[0] - x)))
+        if feasible(world):
+            bases.append((x, y))
+    bases = spread(bases, args.views)
     roi = world.info.roi
-    lo = (roi[0] - 1.0) if roi is not None else centre - 3
-    hi = (roi[1] + 1.0) if roi is not None else centre + 3
-    lo[2], hi[2] = -0.05, max(hi[2], 2.2)
+    lo, hi = map_bounds(
+        roi if roi is not None else (centre - 1.0, centre + 1.0),
+        world.info.robot_start[:2], np.zeros((0, 3)),
+        footprint=world.robot.footprint_radius, platform_xy=np.array(bases).reshape(-1, 2),
+    )  # fmt: skip
     memory = SceneMemory(
         MemoryConfig(
             bounds_min=tuple(lo),
@@ -115,15 +125,8 @@ def run_fusion(args: argparse.Namespace, progress=None):
     renderer = CameraRenderer(world.model, 640, 480)
     perception = Perception()
     registered = Perception(PerceptionConfig(stride=1))
-    camera = world.robot.default_cameras[0]
     rng = np.random.default_rng(args.seed)
     edges, closure = ground_truth.support_graph(world.model, world.data, world.info)
-    bases = []
-    for x, y in path_bases(world, args.path, args.views, centre):
-        world.place(base=(x, y, math.atan2(centre[1] - y, centre[0] - x)))
-        if feasible(world):
-            bases.append((x, y))
-    bases = spread(bases, args.views)
     segments_seen = []
     metrics: list[ViewMetrics] = []
     gt = None

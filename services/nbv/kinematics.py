@@ -93,7 +93,7 @@ class HeadIK:
                 break
         T = self.camera_pose(base, q)
         to = target - T[:3, 3]
-        aim = math.acos(min(1.0, float(T[:3, 2] @ to / np.linalg.norm(to))))
+        aim = math.acos(float(np.clip(T[:3, 2] @ to / np.linalg.norm(to), -1.0, 1.0)))
         err = abs(T[2, 3] - height)
         if aim > aim_tol or err > height_tol:
             return None

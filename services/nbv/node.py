@@ -28,6 +28,7 @@ from services.common.membership import Members
 from services.common.node import Node
 from services.common.robots import robot_mjcf
 from services.nbv.config import NbvSettings
+from services.nbv.path_cost import path_cost
 from services.nbv.planner import Planner, PlannerConfig
 
 log = logging.getLogger("avs.nbv")
@@ -208,12 +209,18 @@ class NbvNode:
         step = request.step
         if request.initial:
             centre = self.first_target()
-            joints = self.planner.look(current, centre)
-            T = self.planner.ik.camera_pose(current, np.array(list(joints.values())))
-            if request.execute and joints:
-                self._head(joints, step)
-            scores = dict(information_gain=0.0, cost=0.0, utility=0.0)
-            return self._reply(step, T, current, joints, centre, **scores)
+            base, sol = self.planner.first_view(current, centre)
+            c = self.planner.config
+            cost = path_cost(np.array([current, base]), c.vel_lin, c.vel_rot)
+            if request.execute:
+                if cost > 0:  # turned in place toward the scene
+                    self.out_base.put(
+                        BaseGoal(seq=step, stamp=time.time(), goal_id=f"view-{step}",
+                                 x=base[0], y=base[1], yaw=base[2])
+                    )  # fmt: skip
+                self._head(sol.joints, step)
+            scores = dict(information_gain=0.0, cost=cost, utility=0.0)
+            return self._reply(step, sol.T_world_camera, base, sol.joints, centre, **scores)
         piece = self._piece = self._map()
         scene = None
         if self.s.sampling == "topdown":  # the only sampling that reads the scene graph
@@ -237,9 +244,10 @@ class NbvNode:
             self.node.metrics.gauge(key, value)
         b = result.best
         if b is None:
+            log.warning("no candidate view: %s", result.detail)
             return self._reply(
                 step, np.eye(4), current, {}, centres[0], information_gain=0.0, cost=0.0,
-                utility=0.0, terminate=True, reason="no_candidates",
+                utility=0.0, terminate=True, reason="no_candidates", detail=result.detail,
             )  # fmt: skip
         joints = c.joints[b]
         reply = self._reply(

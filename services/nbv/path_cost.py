@@ -7,6 +7,7 @@ flood fill of the footprint's configuration space) are unreachable without askin
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -33,8 +34,9 @@ def path_cost(path: np.ndarray, vel_lin: float, vel_rot: float) -> float:
 @njit(cache=True, nogil=True)
 def segment_free(free: np.ndarray, ax: float, ay: float, bx: float, by: float) -> bool:
     """Grid traversal (Amanatides & Woo 1987) of the segment a→b, in cell units: True when
-    every cell it passes through is ``free`` (cells outside the grid are not). Exact, where
-    sampling points along the segment can step over the corner of an obstacle."""
+    every cell it passes through is ``free`` (cells outside the grid are unknown space, which
+    is no obstacle). Exact, where sampling points along the segment can step over the corner
+    of an obstacle."""
     nx, ny = free.shape
     i, j = math.floor(ax), math.floor(ay)
     # the segment's parameter t ∈ [0, 1] at the next cell boundary along x, y, and per cell
@@ -42,7 +44,7 @@ def segment_free(free: np.ndarray, ax: float, ay: float, bx: float, by: float) -
     sj, ty, tdy = dda_axis(ay, by - ay, 1.0, j)
     i_end, j_end = math.floor(bx), math.floor(by)
     for _ in range(abs(i_end - i) + abs(j_end - j) + 1):
-        if i < 0 or j < 0 or i >= nx or j >= ny or not free[i, j]:
+        if 0 <= i < nx and 0 <= j < ny and not free[i, j]:
             return False
         if tx < ty:
             tx += tdx
@@ -101,12 +103,38 @@ class FloorMap:
         return cls(np.asarray(origin[:2], float), voxel, clearance)
 
     def lookup(self, xy: np.ndarray) -> np.ndarray:
-        """Clearance at points (n, 2); 0 outside the map."""
+        """Clearance at points (n, 2); ∞ outside the map (unknown space, no obstacle: the map
+        is made to cover everywhere the platform may need to go)."""
         k = np.floor((np.asarray(xy, float).reshape(-1, 2) - self.origin) / self.cell).astype(int)
         inside = np.all((k >= 0) & (k < self.clearance.shape), axis=1)
-        out = np.zeros(len(k))
+        out = np.full(len(k), np.inf)
         out[inside] = self.clearance[k[inside, 0], k[inside, 1]]
         return out
+
+
+@functools.cache
+def _exact_motions():
+    """OMPL's MotionValidator with an exact check, made on first use (OMPL loads lazily)."""
+    from ompl import base as ob
+
+    class ExactMotions(ob.MotionValidator):
+        """A motion is valid when every cell its footprint centre crosses is (the footprint is
+        a disc: yaw does not matter), one traversal per motion instead of OMPL's
+        state-by-state sampling, which can cut a corner. Holds the grid, not the planner: a
+        reference back to it would make a cycle through OMPL that Python cannot collect."""
+
+        def __init__(self, si, free: np.ndarray, origin: np.ndarray, cell: float) -> None:
+            super().__init__(si)
+            self.free, self.origin, self.cell = free, origin, cell
+
+        def checkMotion(self, s1, s2, *last_valid) -> bool:
+            o, c = self.origin, self.cell
+            return segment_free(
+                self.free, (s1.getX() - o[0]) / c, (s1.getY() - o[1]) / c,
+                (s2.getX() - o[0]) / c, (s2.getY() - o[1]) / c,
+            )  # fmt: skip
+
+    return ExactMotions
 
 
 class PathPlanner:
@@ -140,9 +168,10 @@ class PathPlanner:
         )  # fmt: skip
 
     def _label(self, xy) -> int:
+        """The free component of the cell under ``xy`` (0: not free; -1: outside the map)."""
         k = np.floor((np.asarray(xy[:2]) - self.floor.origin) / self.floor.cell).astype(int)
         if np.any(k < 0) or np.any(k >= self.labels.shape):
-            return 0
+            return -1
         return int(self.labels[k[0], k[1]])
 
     def plan(self, start, goal) -> np.ndarray | None:
@@ -154,8 +183,9 @@ class PathPlanner:
             return np.stack([start, goal])
         if not self.valid(start[None, :2])[0]:
             return None  # boxed in: the caller clears its own footprint first
-        if self._label(start) == 0 or self._label(start) != self._label(goal):
-            return None
+        a, b = self._label(start), self._label(goal)
+        if a >= 0 and b >= 0 and a != b:
+            return None  # two free components of the map, no way round outside it
         return self._rrt(start, goal)
 
     def _space_information(self):
@@ -179,21 +209,12 @@ class PathPlanner:
             def valid(state) -> bool:
                 i = int((state.getX() - origin[0]) / cell)
                 j = int((state.getY() - origin[1]) / cell)
-                return bool(0 <= i < nx and 0 <= j < ny and free[i, j])
-
-            segment_free = self._segment_free
-
-            class ExactMotions(ob.MotionValidator):
-                """A motion is valid when every cell its footprint centre crosses is (the
-                footprint is a disc: yaw does not matter), one vectorised check per motion
-                instead of OMPL's state-by-state sampling, which can cut a corner."""
-
-                def checkMotion(self, s1, s2, *last_valid) -> bool:
-                    a = np.array([s1.getX(), s1.getY()])
-                    return segment_free(a, np.array([s2.getX(), s2.getY()]))
+                return bool(not (0 <= i < nx and 0 <= j < ny) or free[i, j])
 
             si.setStateValidityChecker(valid)
-            self._motions = ExactMotions(si)  # kept alive here: OMPL holds no reference
+            ExactMotions = _exact_motions()
+            # kept alive here: OMPL holds no reference
+            self._motions = ExactMotions(si, free, origin, cell)
             si.setMotionValidator(self._motions)
             si.setup()
             self._si, self._space = si, space

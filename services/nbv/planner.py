@@ -16,7 +16,7 @@ import numpy as np
 from schemas import SceneModel
 from services.nbv import information_gain as ig
 from services.nbv import topdown, view_sphere
-from services.nbv.kinematics import HeadIK
+from services.nbv.kinematics import HeadIK, HeadSolution
 from services.nbv.path_cost import FloorMap, PathPlanner
 from services.nbv.utility import utility
 
@@ -78,6 +78,7 @@ class PlanResult:
     terminate: bool
     reason: str
     timings_ms: dict[str, float] = field(default_factory=dict)
+    detail: str = ""  # why, in words (no_candidates)
 
 
 class Planner:
@@ -132,15 +133,29 @@ class Planner:
             s[keep],
         )
 
-    def look(self, base: tuple[float, float, float], centre: np.ndarray) -> dict[str, float]:
+    def look(self, base: tuple[float, float, float], centre: np.ndarray) -> HeadSolution:
         """Head joints that aim the camera at the centre from where the robot stands (the first
-        view): the torso as high as it goes, the neck by IK."""
+        view): the torso as high as it goes, the neck by IK; the best aim the joints' ranges
+        allow (its ``aim_error`` tells how far off that is)."""
         best = None
         for h in np.linspace(2.0, 0.8, 13):
-            sol = self.ik.solve(base, centre, h, height_tol=10.0)
+            sol = self.ik.solve(base, centre, h, aim_tol=math.pi, height_tol=10.0)
             if sol is not None and (best is None or sol.aim_error < best.aim_error - 1e-4):
                 best = sol
-        return best.joints if best is not None else {}
+        return best
+
+    def first_view(
+        self, base: tuple[float, float, float], centre: np.ndarray, aim_tol: float = 0.02
+    ) -> tuple[tuple[float, float, float], HeadSolution]:
+        """The platform pose and head joints of the first view: from where the robot stands,
+        looking at the centre; where the neck cannot turn that far (the robot faces away),
+        the platform first turns in place toward the centre."""
+        sol = self.look(base, centre)
+        if sol.aim_error <= aim_tol:
+            return base, sol
+        x, y, _ = base
+        turned = (x, y, math.atan2(centre[1] - y, centre[0] - x))
+        return turned, self.look(turned, centre)
 
     def candidates(self, centres, scene, visited, occupancy) -> Candidates:
         """The reachable views of every view sphere (one per centre: the scene's centre or
@@ -178,6 +193,26 @@ class Planner:
             cands.saliency[keep],
         )
 
+    @staticmethod
+    def why_no_candidates(
+        planner: PathPlanner, current: tuple[float, float, float], sampled: tuple[int, int]
+    ) -> str:
+        """Why no view is left, in words: none the head reaches, none that sees its target,
+        or the platform cannot move from where it stands (and how close the obstacle is)."""
+        with_ik, visible = sampled
+        if with_ik == 0:
+            return "no view of the view sphere is reachable by the head's inverse kinematics"
+        if visible == 0:
+            return f"all {with_ik} views the head reaches look through known obstacles"
+        x, y = current[:2]
+        clearance = float(planner.floor.lookup(np.array([[x, y]]))[0])
+        if clearance < planner.need:
+            return (
+                f"the platform at ({x:.2f}, {y:.2f}) is boxed in: an obstacle {clearance:.2f} m "
+                f"from its centre, it needs {planner.need:.2f} m"
+            )
+        return f"none of the {visible} visible views has a collision-free path from here"
+
     def coarse(self, states, origin, voxel, poses: np.ndarray) -> np.ndarray:
         """The every-n-th-ray gains of ``poses`` on this map (a share of a step, for another
         planner that fans its candidates out)."""
@@ -203,7 +238,9 @@ class Planner:
         times = {}
         t0 = time.perf_counter()
         occupancy = (states, origin, voxel)
-        cands = self.visible(self.candidates(centres, scene, visited, occupancy), occupancy)
+        reachable_by_ik = self.candidates(centres, scene, visited, occupancy)
+        cands = self.visible(reachable_by_ik, occupancy)
+        sampled = (len(reachable_by_ik.t), len(cands.t))
         times["sampling_ms"] = (time.perf_counter() - t0) * 1e3
         t1 = time.perf_counter()
         gain, _ = ig.hierarchical(
@@ -228,9 +265,10 @@ class Planner:
         u = utility(c.strategy, gain, cost, cands.saliency, c.lam, self.rng)
         reachable = np.isfinite(cost)
         best = int(np.argmax(u)) if reachable.any() else None
-        terminate, reason = False, ""
+        terminate, reason, detail = False, "", ""
         if best is None:
             terminate, reason = True, "no_candidates"
+            detail = self.why_no_candidates(planner, current, sampled)
         else:
             if self.first_gain is None:
                 self.first_gain = float(gain[reachable].max())
@@ -251,4 +289,5 @@ class Planner:
             terminate,
             reason,
             times,
+            detail,
         )

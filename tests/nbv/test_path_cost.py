@@ -88,3 +88,13 @@ def test_the_robot_does_not_block_itself():
     assert PathPlanner(free, 0.45, 0.5, 1.0).cost((0, 0, 0), (1.0, 0.0, 0.0))[0] == pytest.approx(
         2.0
     )
+
+
+def test_outside_the_map_is_unknown_space_not_an_obstacle():
+    planner = PathPlanner(world([(0.8, -1.0, 1.2, 1.0)]), 0.45, 0.5, 1.0)
+    assert planner.floor.lookup(np.array([[-5.0, 0.0], [0.0, 9.0]])).tolist() == [np.inf] * 2
+    # a start beside the map drives in along the straight line (it crosses no obstacle)
+    cost, path = planner.cost((-2.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert len(path) == 2 and cost == pytest.approx(4.0)
+    # a line through the wall is still refused, wherever it starts
+    assert not planner._segment_free(np.array([-2.0, 0.0]), np.array([2.0, 0.0]))
