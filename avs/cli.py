@@ -14,6 +14,7 @@ from avs.commands import (
     perceive,
     record,
     run,
+    scene,
     schema,
     sim,
     status,
@@ -21,7 +22,20 @@ from avs.commands import (
 )
 from services.common.log import setup_logging
 
-COMMANDS = (run, explore, up, status, sim, perceive, fuse, gaze_experiment, echo, record, schema)
+COMMANDS = (
+    run,
+    explore,
+    up,
+    status,
+    sim,
+    scene,
+    perceive,
+    fuse,
+    gaze_experiment,
+    echo,
+    record,
+    schema,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
