@@ -7,8 +7,9 @@ on a loopback router, the sim in lockstep, and this orchestrator stepping it:
 until the planner stops (u(v̂) below quality, or n views). The first view is taken where the
 robot starts, looking at the roi's centre (turning in place first where the neck cannot).
 Per view: support-graph precision / recall / F1 (Eq. 4.14-4.16), unknown voxels in the roi,
-path cost and its sum, InlierIndex and OverlappingIndex (Eq. 3.11, 3.12), planning time,
-platform pose."""
+path cost and its sum, InlierIndex and OverlappingIndex (Eq. 3.11, 3.12), the predicted and
+the realised information gain, how the primitives map to bodies, planning time, platform
+pose."""
 
 from __future__ import annotations
 
@@ -48,6 +49,8 @@ from schemas import (
 )
 
 EPISODE_SERVICES = ("sim", "perception", "scene_memory", "nbv")
+#: a view that realises less than this share of its predicted gain is a warning sign
+REALISED_SHARE = 0.1
 log = logging.getLogger("avs.explore")
 
 
@@ -87,6 +90,11 @@ class ViewRecord:
     goal: list[float] = field(default_factory=list)  # the planned platform pose (Eq. 4.2, 4.3)
     trajectory: list[list[float]] = field(default_factory=list)  # (x, y) driven, every 0.1 s
     planning_workers: int = 1  # nbv instances that evaluated the candidates
+    #: the gain the view realised, by the measure that predicted ``information_gain``
+    realised_gain: float = 0.0
+    vertex_precision: float = 0.0  # primitives that map to a body / all primitives
+    segments_per_body: dict[str, int] = field(default_factory=dict)
+    bodies_merged: int = 0  # primitives with ≥ 20 % of their points on each of two bodies
 
 
 @dataclass
@@ -100,6 +108,8 @@ class EpisodeResult:
     terminated_by: str = ""
     termination_detail: str = ""  # why, in words (no_candidates)
     final_support_edges: list[list[str]] = field(default_factory=list)
+    #: the fused model's primitives: id, kind, the body each maps to, OBB centre and extent
+    final_primitives: list[dict] = field(default_factory=list)
     roi: list[list[float]] = field(default_factory=list)
     centre: list[float] = field(default_factory=list)
     #: the final map's obstacles seen from above (occupied voxels 5 cm-2 m): a PNG in the
@@ -381,9 +391,22 @@ class Episode:
                 cost, accumulated, scores.inlier_index, scores.overlapping_index, planning_s,
                 pose, float(nbv.information_gain), reached, [nbv.x, nbv.y, nbv.yaw],
                 trajectory, nbv.workers,
+                stats.realised_volume if c.ig_measure == "volume" else stats.realised_rays,
+                scores.vertex_precision, scores.segments_per_body, scores.bodies_merged,
             )  # fmt: skip
             result.views.append(record)
-            result.final_support_edges = [list(e) for e in support.edges]
+            self._check_gain(result.views)
+            edges = [(e.supporter, e.supported) for e in scene.support_edges]
+            result.final_support_edges = [
+                list(e) for e in evaluation.edge_names(edges, scores.bodies)
+            ]  # every fused edge
+            result.final_primitives = [
+                {"id": p.id, "kind": p.model.kind, "body": scores.bodies.get(p.id, ""),
+                 "center": [round(float(x), 3) for x in p.obb.center],
+                 "extent": [round(float(x), 3) for x in p.obb.extent],
+                 "inliers": p.inlier_count}
+                for p in scene.primitives
+            ]  # fmt: skip
             if self.progress:
                 self.progress(view + 1, c.views, record)
         else:
@@ -391,6 +414,20 @@ class Episode:
         if not result.terminated_by:
             result.terminated_by = "max_views"
         self._floor(session, result)
+
+    @staticmethod
+    def _check_gain(views: list[ViewRecord]) -> None:
+        """Warn when two views in a row realised under a tenth of the gain they were chosen
+        for: the planner is reasoning on a map the world does not match."""
+        low = [v.realised_gain < REALISED_SHARE * v.information_gain for v in views[-2:]]
+        if len(low) == 2 and all(low) and views[-1].information_gain > 0:
+            a, b = views[-2:]
+            log.warning(
+                "views %d and %d realised %.0f and %.0f of a predicted %.0f and %.0f "
+                "(under %d %%): the map the planner uses may not match the scene",
+                a.view, b.view, a.realised_gain, b.realised_gain, a.information_gain,
+                b.information_gain, round(100 * REALISED_SHARE),
+            )  # fmt: skip
 
     def _floor(self, session, result: EpisodeResult) -> None:
         """The obstacles of the final map from above, for the report's map of the views."""

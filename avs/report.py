@@ -58,7 +58,30 @@ def series_plots(runs: dict[str, list[dict]], out: Path) -> list[Path]:
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.legend()
         paths.append(_save(fig, out / f"{name}.png"))
+    paths.append(gain_plot(runs, out))
     return paths
+
+
+def gain_plot(runs: dict[str, list[dict]], out: Path) -> Path:
+    """Predicted information gain of each view (the planner's, Eq. 4.6) against the gain it
+    realised (the same measure, on what the camera then saw): a large gap means the planner
+    reasons on a map the scene does not match."""
+    from matplotlib.ticker import MaxNLocator
+
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    for label, episodes in runs.items():
+        e = episodes[0]
+        x = np.arange(1, len(e["views"]) + 1)
+        line = ax.plot(x, [r["information_gain"] for r in e["views"]], "o-",
+                       label=f"{label}: predicted")[0]  # fmt: skip
+        ax.plot(x, [r.get("realised_gain", 0.0) for r in e["views"]], "s--",
+                color=line.get_color(), label=f"{label}: realised")  # fmt: skip
+    ax.set_xlabel("view")
+    ax.set_title("information gain per view (first seed)")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.legend(fontsize=8)
+    return _save(fig, out / "information_gain.png")
 
 
 def map_plot(episodes: dict[str, dict], out: Path) -> Path:
@@ -106,14 +129,17 @@ def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Pa
     for img in images:
         data = base64.b64encode(img.read_bytes()).decode()
         parts.append(f'<p><img alt="{img.stem}" src="data:image/png;base64,{data}"></p>')
-    cols = ["view", "support_f1", "unknown_voxels", "path_cost", "accumulated_path_cost",
-            "inlier_index", "overlapping_index", "planning_s"]  # fmt: skip
+    cols = ["view", "support_precision", "support_recall", "support_f1", "vertex_precision",
+            "bodies_merged", "unknown_voxels", "information_gain", "realised_gain", "path_cost",
+            "accumulated_path_cost", "inlier_index", "overlapping_index", "planning_s"]  # fmt: skip
     for label, e in tables.items():
         parts.append(f"<h2>{html.escape(label)}</h2><p>terminated by {e['terminated_by']}</p>")
         parts.append("<table><tr>" + "".join(f"<th>{c}</th>" for c in cols) + "</tr>")
         for r in e["views"]:
             cells = "".join(
-                f"<td>{r[c]:.3f}</td>" if isinstance(r[c], float) else f"<td>{r[c]}</td>"
+                f"<td>{r.get(c, 0):.3f}</td>"
+                if isinstance(r.get(c, 0), float)
+                else f"<td>{r.get(c, '')}</td>"
                 for c in cols
             )
             parts.append(f"<tr>{cells}</tr>")

@@ -36,6 +36,15 @@ class OccupancyStats(Stamped):
     occupied: int = Field(ge=0)
     map_version: int = Field(ge=0)
     frames_integrated: int = Field(0, ge=0)
+    realised_volume: int = Field(
+        0, description="unknown voxels of the scene's roi the last integrated frame made known"
+    )
+    realised_rays: float = Field(
+        0.0,
+        ge=0,
+        description="Eq. 4.6 on the last frame's own rays: unknown roi voxels they crossed up "
+        "to their returns (every 30th pixel, × 30), on the map before it",
+    )
 
 
 class OccupancySlice(Stamped):

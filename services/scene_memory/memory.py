@@ -22,6 +22,8 @@ class MemoryConfig:
     bounds_max: tuple[float, float, float] = (4.0, 2.5, 2.2)
     cloud_voxel: float = 0.01
     depth_min: float = 0.35
+    #: the region whose unknown voxels the views resolve (realised information gain)
+    roi: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     fusion: FusionConfig = field(default_factory=FusionConfig)
     occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
 
@@ -35,6 +37,9 @@ class SceneMemory:
         self.cloud = np.zeros((0, 3), np.float32)
         self.colours = np.zeros((0, 3), np.uint8)
         self.timings_ms: dict[str, float] = {}
+        #: the information gain the last frame realised in the roi, by both of the planner's
+        #: measures: "volume" (unknown voxels it made known) and "rays" (Eq. 4.6 on its rays)
+        self.realised_gain: dict[str, float] = {"volume": 0.0, "rays": 0.0}
 
     def integrate(self, frame: RgbdFrame) -> int:
         """Add a depth frame to the occupancy map and the registered cloud."""
@@ -43,9 +48,18 @@ class SceneMemory:
         t0 = time.perf_counter()
         K, T = frame.intrinsics, frame.T_world_camera
         max_range = min(self.config.occupancy.max_range, frame.depth_max or np.inf)
+        roi = self.config.roi
+        if roi is not None:
+            unknown = self.occupancy.counts(*roi)[0]
+            rays = self.occupancy.unknown_on_rays(
+                frame.depth, K.fx, K.fy, K.cx, K.cy, T, roi, self.config.depth_min, max_range
+            )
         n = self.occupancy.integrate_depth(
             frame.depth, K.fx, K.fy, K.cx, K.cy, T, self.config.depth_min, max_range
         )
+        if roi is not None:
+            volume = unknown - self.occupancy.counts(*roi)[0]
+            self.realised_gain = {"volume": float(volume), "rays": rays}
         t1 = time.perf_counter()
         z = frame.depth[::2, ::2]
         v, u = np.nonzero((z > self.config.depth_min) & (z <= max_range))

@@ -42,6 +42,7 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
             bounds_max=tuple(s.bounds_max),
             fusion=FusionConfig(mode=s.fusion),
             occupancy=OccupancyConfig(voxel=s.voxel, max_range=s.max_range),
+            roi=(tuple(s.roi_min), tuple(s.roi_max)) if s.roi_min and s.roi_max else None,
         )
     )
 
@@ -143,6 +144,8 @@ class SceneMemoryNode:
         with self.lock:
             occ = self.memory.occupancy
             unknown, free, occupied = occ.counts(lo, hi)
+            # (a snapshot from before realised gains were kept has none)
+            realised = getattr(self.memory, "realised_gain", {"volume": 0.0, "rays": 0.0})
             return OccupancyStats(
                 seq=self.n,
                 voxel_size=occ.voxel,
@@ -153,6 +156,8 @@ class SceneMemoryNode:
                 occupied=occupied,
                 map_version=occ.version,
                 frames_integrated=occ.frames,
+                realised_volume=int(realised["volume"]),
+                realised_rays=realised["rays"],
             )
 
     def on_slice(self, request: BoxQuery | None) -> OccupancySlice:

@@ -183,6 +183,58 @@ def _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range):
             break
 
 
+@njit(cache=True, nogil=True)
+def _unknown_on_rays(L, lo, voxel, origin, ends, box):
+    """Σ over rays of the unknown voxels inside the index box ``box`` (x0, y0, z0, x1, y1, z1)
+    that each ray from ``origin`` to its end point crosses, its end's voxel included (3D DDA;
+    the part of a ray outside the map is skipped)."""
+    nx, ny, nz = L.shape
+    total = 0
+    for r in range(ends.shape[0]):
+        ux, uy, uz = ends[r, 0] - origin[0], ends[r, 1] - origin[1], ends[r, 2] - origin[2]
+        dist = math.sqrt(ux * ux + uy * uy + uz * uz)
+        if dist < 1e-9:
+            continue
+        ux, uy, uz = ux / dist, uy / dist, uz / dist
+        ax, bx = _start(origin[0], ux, lo[0], nx, voxel)
+        ay, by = _start(origin[1], uy, lo[1], ny, voxel)
+        az, bz = _start(origin[2], uz, lo[2], nz, voxel)
+        t0, t1 = max(0.0, ax, ay, az), min(dist, bx, by, bz)
+        if t0 > t1:
+            continue
+        px = origin[0] - lo[0] + ux * (t0 + 1e-9)
+        py = origin[1] - lo[1] + uy * (t0 + 1e-9)
+        pz = origin[2] - lo[2] + uz * (t0 + 1e-9)
+        qx = origin[0] - lo[0] + ux * (t1 - 1e-9)
+        qy = origin[1] - lo[1] + uy * (t1 - 1e-9)
+        qz = origin[2] - lo[2] + uz * (t1 - 1e-9)
+        ix, iy, iz = int(px / voxel), int(py / voxel), int(pz / voxel)
+        jx, jy, jz = int(qx / voxel), int(qy / voxel), int(qz / voxel)
+        sx, tmx, tdx = dda_axis(px, ux, voxel, ix)
+        sy, tmy, tdy = dda_axis(py, uy, voxel, iy)
+        sz, tmz, tdz = dda_axis(pz, uz, voxel, iz)
+        for _ in range(abs(jx - ix) + abs(jy - iy) + abs(jz - iz) + 1):
+            if not (0 <= ix < nx and 0 <= iy < ny and 0 <= iz < nz):
+                break
+            if (
+                L[ix, iy, iz] == UNKNOWN
+                and box[0] <= ix < box[3]
+                and box[1] <= iy < box[4]
+                and box[2] <= iz < box[5]
+            ):
+                total += 1
+            if tmx <= tmy and tmx <= tmz:
+                ix += sx
+                tmx += tdx
+            elif tmy <= tmz:
+                iy += sy
+                tmy += tdy
+            else:
+                iz += sz
+                tmz += tdz
+    return total
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _free(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks):
     """Second pass: the rays in parallel chunks of neighbouring rays (which share voxels)."""
@@ -347,6 +399,34 @@ class OccupancyMap:
         cam = np.column_stack([(u - cx) / fx * d, (v - cy) / fy * d, d])
         world = cam @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
         return self.integrate(world, T_world_camera[:3, 3], max_range)
+
+    def unknown_on_rays(
+        self,
+        depth: np.ndarray,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        T_world_camera: np.ndarray,
+        box: tuple[np.ndarray, np.ndarray],
+        depth_min: float = 0.0,
+        max_range: float | None = None,
+        every: int = 30,
+    ) -> float:
+        """The information gain of Eq. 4.6 a depth image realises on this map (call it before
+        integrating the image): Σ over every ``every``-th pixel's ray of the unknown voxels in
+        ``box`` it crosses up to its return, scaled by ``every`` (the planner's "rays"
+        measure, on the rays the view really cast)."""
+        max_range = self.config.max_range if max_range is None else max_range
+        z = np.asarray(depth, np.float64).ravel()[::every]
+        v, u = np.divmod(np.arange(0, np.asarray(depth).size, every), np.asarray(depth).shape[1])
+        ok = np.isfinite(z) & (z > depth_min) & (z <= max_range)
+        d, u, v = z[ok], u[ok], v[ok]
+        cam = np.column_stack([(u - cx) / fx * d, (v - cy) / fy * d, d])
+        ends = cam @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
+        index = np.array(self._index_box(*box), np.int64)
+        origin = np.asarray(T_world_camera[:3, 3], np.float64)
+        return float(every * _unknown_on_rays(self.L, self.lo, self.voxel, origin, ends, index))
 
     def _index_box(self, box_min, box_max) -> tuple[int, int, int, int, int, int]:
         i0 = np.clip(np.floor((np.asarray(box_min) - self.lo) / self.voxel), 0, self.shape).astype(

@@ -164,3 +164,48 @@ def test_same_states_as_octomap_on_a_cluttered_scan():
         assert abs(a - b) <= 0.01 * b, (s, a, b)
     # and voxel by voxel they agree almost everywhere
     assert (ours != theirs).mean() < 0.001
+
+
+def test_the_gain_a_frame_realises_is_counted_both_ways():
+    """``volume``: roi voxels a frame made known (the memory's count before and after it);
+    ``rays``: Eq. 4.6 on the frame's own rays up to their returns, checked against every
+    crossing of each ray with the voxel planes; a second look at the wall realises nothing."""
+    from schemas import CameraIntrinsics, RgbdFrame
+    from services.scene_memory.memory import MemoryConfig, SceneMemory
+
+    K = CameraIntrinsics(width=W, height=H, fx=F, fy=F, cx=(W - 1) / 2, cy=(H - 1) / 2)
+
+    def make_frame(depth, T):
+        return RgbdFrame(seq=0, stamp=0.0, camera="head_rgbd", intrinsics=K, rgb=None,
+                         depth=depth, T_world_camera=T, depth_min=0.35, depth_max=3.0)  # fmt: skip
+
+    roi = ((1.0, -0.3, 0.7), (1.6, 0.3, 1.3))
+    memory = SceneMemory(MemoryConfig(bounds_min=tuple(LO), bounds_max=tuple(HI), roi=roi))
+    T, depth = camera_facing_x(), wall_depth(1.313)
+    T[:3, 3] = [0.2037, 0.0041, 1.0013]  # off the voxel grid: no ray runs along an edge
+    m = memory.occupancy
+    expected = 0
+    v, u = np.divmod(np.arange(0, W * H, 30), W)
+    for uu, vv in zip(u, v, strict=True):
+        d = np.array([(uu - (W - 1) / 2) / F, (vv - (H - 1) / 2) / F, 1.0]) * depth[0, 0]
+        end = T[:3, :3] @ d + T[:3, 3]
+        # every crossing of a voxel boundary plane: each piece between two lies in one voxel
+        o, step = T[:3, 3] - m.lo, end - T[:3, 3]
+        ts = [0.0, 1.0]
+        for a in range(3):
+            k = np.arange(m.shape[a] + 1) * m.voxel
+            t = (k - o[a]) / step[a]
+            ts += [x for x in t if 0 < x < 1]
+        ts = np.unique(ts)
+        mids = o + (ts[:-1] + ts[1:])[:, None] / 2 * step
+        keys = {tuple(k) for k in np.floor(mids / m.voxel).astype(int)}
+        lo_k, hi_k = m._index_box(*roi)[:3], m._index_box(*roi)[3:]
+        expected += sum(all(lo_k[a] <= k[a] < hi_k[a] for a in range(3)) for k in keys)
+    before = m.counts(*roi)[0]
+    memory.integrate(make_frame(depth, T))
+    assert memory.realised_gain["volume"] == before - m.counts(*roi)[0] > 10_000
+    assert memory.realised_gain["rays"] == pytest.approx(
+        30 * expected, rel=1e-4
+    )  # a ray may graze an edge
+    memory.integrate(make_frame(depth, T))
+    assert memory.realised_gain == {"volume": 0.0, "rays": 0.0}
