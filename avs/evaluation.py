@@ -80,28 +80,9 @@ def in_obb(p: Primitive, points: np.ndarray, margin: float = OBB_MARGIN) -> np.n
     return np.all(np.abs(local) <= p.obb.extent / 2 + margin, axis=1)
 
 
-def surface_distance(p: Primitive, points: np.ndarray) -> np.ndarray:
-    m = p.model
-    if m.kind == "plane":
-        return np.abs(points @ m.normal + m.d)
-    if m.kind == "sphere":
-        return np.abs(np.linalg.norm(points - m.center, axis=1) - m.radius)
-    if m.kind == "cylinder":
-        v = points - m.center
-        t = v @ m.axis
-        radial = np.linalg.norm(v - np.outer(t, m.axis), axis=1) - m.radius
-        beyond = np.abs(t) - m.height / 2
-        return np.where(beyond > 0, np.hypot(np.maximum(radial, 0), beyond), np.abs(radial))
-    local = (points - m.center) @ m.rotation
-    q = np.abs(local) - m.extent / 2
-    outside = np.linalg.norm(np.maximum(q, 0), axis=1)
-    inside = np.minimum(q.max(axis=1), 0)
-    return np.abs(outside + inside)
-
-
 def explained(p: Primitive, points: np.ndarray, delta: float = DELTA) -> np.ndarray:
     """Which points ψ explains: near its surface and inside its OBB."""
-    return in_obb(p, points, delta) & (surface_distance(p, points) < delta)
+    return in_obb(p, points, delta) & (p.model.distance(points) < delta)
 
 
 def inlier(segment: np.ndarray, p: Primitive) -> float:

@@ -35,6 +35,10 @@ class PlaneModel(Model):
     normal: Direction
     d: float
 
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance of points (n, 3) to the surface."""
+        return np.abs(np.asarray(points) @ self.normal + self.d)
+
 
 class CylinderModel(Model):
     """A finite cylinder: centre point on the axis, unit axis, radius, height along the axis."""
@@ -45,11 +49,23 @@ class CylinderModel(Model):
     radius: float = Field(gt=0)
     height: float = Field(ge=0)
 
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance of points (n, 3) to the mantle, or to the rim beyond its ends."""
+        v = np.asarray(points) - self.center
+        t = v @ self.axis
+        radial = np.linalg.norm(v - np.outer(t, self.axis), axis=1) - self.radius
+        beyond = np.abs(t) - self.height / 2
+        return np.where(beyond > 0, np.hypot(np.maximum(radial, 0), beyond), np.abs(radial))
+
 
 class SphereModel(Model):
     kind: Literal["sphere"] = "sphere"
     center: Vec3
     radius: float = Field(gt=0)
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance of points (n, 3) to the surface."""
+        return np.abs(np.linalg.norm(np.asarray(points) - self.center, axis=1) - self.radius)
 
 
 class BoxModel(Model):
@@ -59,6 +75,12 @@ class BoxModel(Model):
     center: Vec3
     rotation: Annotated[np.ndarray, Array("float64", (3, 3)), Finite()]
     extent: Annotated[np.ndarray, Array("float64", (3,)), Finite()]
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance of points (n, 3) to the box's surface, inside or out."""
+        q = np.abs((np.asarray(points) - self.center) @ self.rotation) - self.extent / 2
+        outside = np.linalg.norm(np.maximum(q, 0), axis=1)
+        return np.abs(outside + np.minimum(q.max(axis=1), 0))
 
 
 PrimitiveModel = Annotated[

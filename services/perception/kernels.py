@@ -227,6 +227,13 @@ def score_spheres(X, N, subset, centers, radii, dist, cos_min):
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _grey(r: float, g: float, b: float, limit: float) -> bool:
+    """Saturation (max − min) / max below ``limit``."""
+    hi = max(r, g, b)
+    return hi <= 0 or (hi - min(r, g, b)) / hi < limit
+
+
 @njit(cache=True, nogil=True)
 def colour_edges(
     colours: np.ndarray,
@@ -236,14 +243,16 @@ def colour_edges(
     threshold: float,
     chroma_threshold: float,
     dark: float,
+    grey: float,
 ) -> np.ndarray:
     """(h, w) bool: material boundaries between a pixel and its right or lower neighbour.
     Either their chromaticity (rgb / (r + g + b)) differs by more than ``chroma_threshold``
     (shading scales a colour and keeps its chromaticity; pixels darker than ``dark`` have
-    none to speak of), or, on one surface orientation (normals within ``cos_same``), their
-    colour differs by more than ``threshold`` (0-255 RGB): across a crease shading alone
-    changes the brightness, and that marks nothing. Where a normal is unknown (the image's
-    rim) the surface is taken as one, so that an edge runs to the border."""
+    none to speak of), or, both grey (saturation under ``grey``: no hue to tell them apart)
+    and on one surface orientation (normals within ``cos_same``), their brightness differs by
+    more than ``threshold`` (0-255 RGB): across a crease shading alone changes it. A print in
+    shades of one colour is no boundary. Where a normal is unknown (the image's rim) the
+    surface is taken as one, so that an edge runs to the border."""
     h, w = valid.shape
     edge = np.zeros((h, w), np.bool_)
     t2, c2 = threshold * threshold, chroma_threshold * chroma_threshold
@@ -265,7 +274,7 @@ def colour_edges(
                 if sa > dark and sb > dark:
                     x0, x1, x2 = a0 / sa - b0 / sb, a1 / sa - b1 / sb, a2 / sa - b2 / sb
                     marked = x0 * x0 + x1 * x1 + x2 * x2 > c2
-                if not marked:
+                if not marked and _grey(a0, a1, a2, grey) and _grey(b0, b1, b2, grey):
                     dot = (
                         normals[r, c, 0] * normals[r2, c2_, 0]
                         + normals[r, c, 1] * normals[r2, c2_, 1]
@@ -317,3 +326,29 @@ def grow_labels(labels: np.ndarray, region: np.ndarray) -> np.ndarray:
                 queue[tail] = r2 * w + c2
                 tail += 1
     return out
+
+
+@njit(cache=True, nogil=True)
+def part_stats(
+    parts: np.ndarray, labels: np.ndarray, colours: np.ndarray, m: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One pass over the grid: per part 1..m its pixel count, its region (the ``labels`` of
+    its pixels; -1 for part 0) and its mean colour."""
+    h, w = parts.shape
+    size = np.zeros(m + 1, np.int64)
+    region = np.full(m + 1, -1, np.int64)
+    total = np.zeros((m + 1, 3))
+    for r in range(h):
+        for c in range(w):
+            p = parts[r, c]
+            if p == 0:
+                continue
+            size[p] += 1
+            region[p] = labels[r, c]
+            for k in range(3):
+                total[p, k] += colours[r, c, k]
+    for p in range(1, m + 1):
+        if size[p]:
+            for k in range(3):
+                total[p, k] /= size[p]
+    return size, region, total

@@ -128,6 +128,9 @@ class Perception:
         relations.settle_on_supports(prims, support, c.relations)
         root = relations.root(prims)
         ground = relations.grounded(prims, root, c.relations)
+        # a ground surface (the table top) rests only on ground (the floor), not on the legs
+        # that hold it up: those are parts of one piece of furniture
+        support = [e for e in support if e[1] not in ground or e[0] in ground]
         unstable = relations.unstable(len(prims), ground, support)
         lap("support_graph")
         resting = {t for _, t, _ in support}

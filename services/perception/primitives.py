@@ -37,8 +37,11 @@ class ExtractionConfig:
     min_arc_deg: float = 45.0  # a cylinder's normals must sweep this arc around its axis
     min_sphere_spread_deg: float = 15.0
     box_orthogonal_deg: float = 12.0
+    thin_face: float = 0.06  # m: a face narrower than this ...
+    thin_orthogonal_deg: float = 25.0  # ... may be this far from orthogonal
     box_touch: float = 0.02
     box_edge_ratio: float = 0.6  # faces of a box: lengths along the common edge agree this well
+    face_fill: float = 0.4  # ... and each face's points cover this much of its rectangle
 
 
 @dataclass
@@ -292,11 +295,46 @@ def _share_an_edge(a: Extracted, b: Extracted, config: ExtractionConfig) -> bool
     return min(la, lb) >= config.box_edge_ratio * max(la, lb)
 
 
+def fill(p: Extracted, cell: float = 0.02) -> float:
+    """How much of its rectangle a plane's inliers cover (cells of ``cell`` metres with a
+    point, over all cells of the rectangle): about 1 for a face of a box, little for a
+    table's front edge and the front legs below it, coplanar within the noise far away."""
+    R = p.box.rotation
+    k = int(np.argmax(np.abs(R.T @ p.normal)))
+    axes = [m for m in range(3) if m != k]
+    uv = (p.points - p.box.center) @ R[:, axes]
+    shape = np.maximum(1, np.ceil(p.box.extent[axes] / cell)).astype(int)
+    ij = np.clip(((uv + p.box.extent[axes] / 2) / cell).astype(int), 0, shape - 1)
+    return len(np.unique(ij[:, 0] * shape[1] + ij[:, 1])) / float(np.prod(shape))
+
+
+def _sin_orthogonal(a: Extracted, b: Extracted, config: ExtractionConfig) -> float:
+    """How far from orthogonal two faces of a box may be fitted: a thin face (a plank's
+    edge, a few centimetres across) has a noisy normal, so more for it."""
+    thin = min(_width(a), _width(b)) < config.thin_face
+    return float(
+        np.sin(np.radians(config.thin_orthogonal_deg if thin else config.box_orthogonal_deg))
+    )
+
+
+def _width(p: Extracted) -> float:
+    """The narrower in-plane extent of a plane."""
+    k = int(np.argmax(np.abs(p.box.rotation.T @ p.normal)))
+    return float(np.delete(p.box.extent, k).min())
+
+
 def assemble_boxes(prims: list[Extracted], config: ExtractionConfig) -> list[Extracted]:
-    """Two or three mutually orthogonal, touching planes of one segment become one box."""
-    sin_orth = np.sin(np.radians(config.box_orthogonal_deg))
+    """Two or three mutually orthogonal, touching planes of one segment become one box;
+    only planes that fill their rectangle can be faces of one."""
     out = [p for p in prims if p.kind != "plane"]
     planes = [p for p in prims if p.kind == "plane"]
+    fills: dict[int, float] = {}  # computed when a pair would make a box: most never do
+
+    def face(k: int) -> bool:
+        if k not in fills:
+            fills[k] = fill(planes[k])
+        return fills[k] >= config.face_fill  # the others stay planes
+
     used = [False] * len(planes)
     for i, a in enumerate(planes):
         if used[i]:
@@ -306,11 +344,16 @@ def assemble_boxes(prims: list[Extracted], config: ExtractionConfig) -> list[Ext
             if j == i or used[j] or planes[j].segment != a.segment:
                 continue
             b = planes[j]
-            orthogonal = all(abs(planes[k].normal @ b.normal) < sin_orth for k in group)
+            orthogonal = all(
+                abs(planes[k].normal @ b.normal) < _sin_orthogonal(planes[k], b, config)
+                for k in group
+            )
             if (
                 orthogonal
                 and any(intersect(planes[k].box, b.box, config.box_touch) for k in group)
                 and all(_share_an_edge(planes[k], b, config) for k in group)
+                and face(i)
+                and face(j)
             ):
                 group.append(j)
             if len(group) == 3:

@@ -81,8 +81,9 @@ def _rests_on(obj: Extracted, surface: Extracted, config: RelationConfig) -> boo
 def _face_contact(s: Extracted, o: Extracted, config: RelationConfig):
     """The face of ``s``'s OBB that ``o`` touches from outside: (outward normal, contact point,
     overlap share) of the best one, or None. ``o``'s points must lie beyond the face plane (up
-    to noise), come within the contact distance of it, and a share of them must project onto
-    the face."""
+    to noise; all of them, not only those over the face: a taller box beside ``s`` touches
+    its top face's edge but does not rest on it), come within the contact distance of it,
+    and a share of them must project onto the face."""
     best = None
     R, half = s.box.rotation, s.box.extent / 2
     points = o.points
@@ -99,6 +100,8 @@ def _face_contact(s: Extracted, o: Extracted, config: RelationConfig):
             d = sign * local[over, k] - half[k]  # distance beyond the face
             if np.percentile(d, 5) < -config.contact / 2 or d.min() > config.contact:
                 continue
+            if np.percentile(sign * local[:, k] - half[k], 5) < -config.contact / 2:
+                continue  # o reaches past the face's plane beside it: it stands next to s
             if best is None or share > best[2]:
                 n = sign * R[:, k]
                 point = s.box.center + n * half[k]

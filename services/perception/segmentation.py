@@ -50,13 +50,16 @@ class ColourSplit:
     """When colour parts a region (see ``split_by_colour``)."""
 
     chroma: float = 0.08  # chromaticity step between neighbours that marks an edge ...
-    dark: float = 60.0  # ... where both are brighter than this (r + g + b, 0-765)
-    edge: float = 40.0  # colour step that marks an edge (0-255 RGB) ...
+    dark: float = 25.0  # ... where both are brighter than this (r + g + b, 0-765)
+    grey: float = 0.25  # saturation below which a colour is grey ...
+    edge: float = 40.0  # ... and a step in brightness marks an edge (0-255 RGB) ...
     same_deg: float = 20.0  # ... between pixels whose normals differ by less than this
     part_min: int = 30  # a part is large from this many pixels ...
-    part_share: float = 0.05  # ... and this share of its region
-    cover: float = 0.6  # the large parts cover this share of the region
+    part_share: float = 0.02  # ... and this share of its region
+    rest_share: float = 0.2  # what no plain object covers is an object from this share
     distinct: float = 45.0  # mean colours of two objects differ by more than this
+    parts_per_colour: int = 3  # an object's colour is in at most this many large parts
+    object_size: float = 0.8  # m: only regions of objects (no larger) are split by colour
 
 
 def _ordered(labels: np.ndarray, n: int, min_size: int) -> tuple[np.ndarray, int]:
@@ -77,51 +80,90 @@ def split_by_colour(
     cloud: OrganizedCloud, labels: np.ndarray, n: int, config: ColourSplit = ColourSplit()
 ) -> tuple[np.ndarray, int]:
     """Regions (labels 0..n-1, -1 outside) cut where colour tells objects apart; returns
-    labels 1..m (0 outside) and m. Parts: connected pieces of a region between colour edges;
-    a region is split when its large parts cover ``cover`` of it and not all have one colour.
-    Large parts of one colour (within ``distinct``) stay together; the pixels between parts
-    join the nearest part of their region."""
+    labels 1..m (0 outside) and m. Only regions of the size of objects (``object_size``) are
+    looked at: furniture is made of parts of several colours, which stay one piece.
+
+    Parts are the connected pieces of a region between colour edges; large parts of one
+    colour (within ``distinct``) form a group. A group in at most ``parts_per_colour`` parts
+    is a plain object; a colour in many pieces interleaved with others is a pattern (a
+    checker's cells). Each plain object becomes a region of its own, and what is left (a
+    patterned object, or fine texture with no large part at all) one more when it is large
+    enough; one object in all: no split. The pixels on colour edges join the nearest object
+    of their region; every object's connected pieces become regions (tiny ones are dropped
+    later, as any region under the minimum size)."""
     if n == 0 or not cloud.colours.any():
         return labels + 1, n
     edges = kernels.colour_edges(
-        cloud.colours, cloud.normals, cloud.valid,
-        float(np.cos(np.radians(config.same_deg))), config.edge, config.chroma, config.dark,
+        cloud.colours, cloud.normals, cloud.valid, float(np.cos(np.radians(config.same_deg))),
+        config.edge, config.chroma, config.dark, config.grey,
     )  # fmt: skip
     parts, m = ndimage.label((labels >= 0) & ~edges)
-    flat = parts.ravel()
-    size = np.bincount(flat, minlength=m + 1)
-    size[0] = 0
-    region = np.full(m + 1, -1)
-    region[flat] = labels.ravel()
+    size, region, mean = kernels.part_stats(parts, labels, cloud.colours, m)
     region_size = np.bincount(labels[labels >= 0], minlength=n)
     big = (size >= config.part_min) & (size >= config.part_share * region_size[region])
     big[0] = False
-    colours = cloud.colours.reshape(-1, 3).astype(np.float64)
-    mean = (
-        np.stack([np.bincount(flat, colours[:, k], minlength=m + 1) for k in range(3)], 1)
-        / np.maximum(size, 1)[:, None]
-    )
-    out = labels + 1
-    next_label = n + 1
+    # the object each pixel seeds (-1: none, it joins the nearest one of its region); each
+    # region worked on in its bounding box
+    boxes = ndimage.find_objects(labels + 1, n)
     seeds = np.full(labels.shape, -1, np.int32)
-    split = np.zeros(n, bool)
+    split = []
+    next_object = 1
     for r in np.unique(region[big]):
         ids = np.flatnonzero(big & (region == r))
-        if len(ids) < 2 or size[ids].sum() < config.cover * region_size[r]:
-            continue
+        rest_floor = max(config.part_min, config.rest_share * region_size[r])
+        if len(ids) == 1 and region_size[r] - size[ids[0]] < rest_floor:
+            continue  # one large part and little else: one object
+        box = _grown(boxes[r], labels.shape, 3)
+        points = cloud.points[box][labels[box] == r]
+        if np.ptp(points, axis=0).max() > config.object_size:
+            continue  # furniture: a counter's top and front are one piece, whatever colour
         group = _colour_groups(mean[ids], config.distinct)
-        if group.max() == 0:
-            continue  # one colour: one object
-        split[r] = True
-        for g in range(group.max() + 1):
-            seeds[np.isin(parts, ids[group == g])] = r + 1 if g == 0 else next_label
-            next_label += g > 0
-    if not split.any():
-        return out, n
-    inside = split[np.maximum(labels, 0)] & (labels >= 0)
-    grown = kernels.grow_labels(np.where(inside, seeds, np.where(labels >= 0, -2, -1)), labels)
-    out = np.where(inside, np.maximum(grown, 0), out)
-    return out, next_label - 1
+        plain = [g for g in range(group.max() + 1) if (group == g).sum() <= config.parts_per_colour]
+        sub = parts[box]
+        plain_px = np.isin(sub, ids[np.isin(group, plain)])
+        # the rest: the region away from the plain objects (not the edges between them)
+        rest_px = (labels[box] == r) & ~ndimage.binary_dilation(plain_px, iterations=3)
+        has_rest = rest_px.sum() >= rest_floor
+        if len(plain) + has_rest < 2:
+            continue  # one object
+        split.append((r, box))
+        sub_seeds = seeds[box]
+        for g in plain:
+            sub_seeds[np.isin(sub, ids[group == g])] = next_object
+            next_object += 1
+        if has_rest:
+            sub_seeds[rest_px] = next_object
+            next_object += 1
+    if not split:
+        return labels + 1, n
+    out = labels + 1
+    for r, box in split:  # the pixels between the seeds join the nearest, then the pieces
+        inside = labels[box] == r
+        grown = kernels.grow_labels(seeds[box], np.where(inside, r, -1).astype(np.int32))
+        pieces, k = _pieces(grown, inside)
+        out[box] = np.where(inside, np.where(pieces > 0, pieces + n, 0), out[box])
+        n += k
+    return out, n
+
+
+def _grown(box: tuple[slice, slice], shape: tuple[int, int], by: int) -> tuple[slice, slice]:
+    """A bounding box (slices) grown by ``by`` pixels, within the image."""
+    return tuple(
+        slice(max(0, b.start - by), min(size, b.stop + by))
+        for b, size in zip(box, shape, strict=True)
+    )
+
+
+def _pieces(objects: np.ndarray, inside: np.ndarray) -> tuple[np.ndarray, int]:
+    """Connected pieces of each object label (4-connected, only within one label)."""
+    out = np.zeros(objects.shape, np.int32)
+    total = 0
+    for obj in np.unique(objects[inside & (objects > 0)]):
+        mask = inside & (objects == obj)
+        lab, k = ndimage.label(mask)
+        out[mask] = lab[mask] + total
+        total += k
+    return out, total
 
 
 def _colour_groups(colours: np.ndarray, distinct: float) -> np.ndarray:

@@ -7,12 +7,14 @@ For a new view's primitives Ψ^{t+1} and the memory Ψ^{1,t}:
 2. for each pair (ψ old, φ new) whose OBBs intersect and whose models agree
    (CompareModelParameters), with Inlier(a, b) = |P_a ∩ OBB(b)| / |P_a| (Eq. 3.8):
    - both cover each other (> λ_o): the same primitive seen again → merged into ψ (modified);
-   - Inlier(φ, ψ) > λ_o and Inlier(ψ, φ) < λ_p: φ is covered by the larger ψ → φ dropped
-     (its points join ψ);
-   - Inlier(ψ, φ) > λ_o and Inlier(φ, ψ) < λ_p: ψ is covered by the larger φ → ψ removed,
-     φ takes its place (and its support edges);
+   - φ ⊂ ψ (Inlier(φ, ψ) ≥ 0.95), or Inlier(φ, ψ) > λ_o and Inlier(ψ, φ) < λ_p: φ is
+     covered by the larger ψ → φ dropped (its points join ψ);
+   - ψ ⊂ φ, or Inlier(ψ, φ) > λ_o and Inlier(φ, ψ) < λ_p: ψ is covered by the larger φ →
+     ψ removed, φ takes its place (and its support edges);
    - coplanar pieces of one plane (both below λ_o): joined into one plane (modified);
    - otherwise (partial overlap, λ_p ≤ coverage): both survive;
+   one solid seen as two kinds (a thin leg as a box and as a cylinder) follows the same
+   coverage rules, the memory's kind kept;
 3. Ψ^{1,t+1} = surviving memory ∪ surviving new.
 
 Support graphs combine by ``sg``: each view's edges, mapped onto memory ids, count into occ(e);
@@ -36,10 +38,12 @@ from schemas import (
     SceneModel,
     SceneObservation,
     SpatialEdge,
+    SphereModel,
     SupportEdge,
 )
 
 MAX_POINTS = 6000  # points a memory primitive keeps (voxel-downsampled)
+BOX_GROWTH = 0.01  # m: points this far beyond a box's face make it grow
 UP = np.array([0.0, 0.0, 1.0])
 
 
@@ -47,10 +51,13 @@ UP = np.array([0.0, 0.0, 1.0])
 class FusionConfig:
     lambda_o: float = 0.7
     lambda_p: float = 0.3
+    contained: float = 0.95  # Inlier(φ, ψ) from which φ ⊂ ψ (Algorithm 2: φ is dropped)
+    face_distance: float = 0.02  # a plane this close to a box's surface is one of its faces
+    surface_tolerance: float = 0.01  # a part of a solid lies this close to its surface
     obb_margin: float = 0.01  # Eq. 3.8's OBB containment, allowing for depth noise
     voxel: float = 0.01  # downsampling of merged inlier clouds
     plane_angle_deg: float = 5.0  # CompareModelParameters tolerances
-    plane_offset: float = 0.02
+    plane_offset: float = 0.01
     axis_angle_deg: float = 10.0
     radius: float = 0.015
     center: float = 0.03
@@ -59,8 +66,10 @@ class FusionConfig:
     changed: float = 0.01  # a merge that moves or grows a box by less is no modification
     large_plane_area: float = 0.3  # m²: planes this large join coplanar pieces ...
     plane_gap: float = 0.25  # ... up to this far apart
-    floor_band: float = 0.04  # level planes this close to the lowest one are the floor
+    floor_band: float = 0.04  # level planes this close to the lowest one are the floor ...
+    floor_max: float = 0.3  # ... when it lies this low (the world's ground is z = 0)
     ground_area: float = 0.2  # level surfaces this large count as ground (stability)
+    rest_tolerance: float = 0.03  # a supported primitive reaches this far below its supporter
     mode: str = "sg"  # pc | sg | pc+sg
 
 
@@ -77,6 +86,7 @@ class Update:
     added: int = 0
     modified: int = 0
     removed: int = 0
+    dropped: int = 0  # new primitives that merged several the memory holds apart
     mapping: dict[int, int] = field(default_factory=dict)  # observation id → memory id
 
 
@@ -123,8 +133,11 @@ def _large_plane(a: Primitive, b: Primitive, c: FusionConfig) -> bool:
     return area >= c.large_plane_area
 
 
+SOLIDS = {"box", "cylinder", "sphere"}
+
+
 def compare_models(a: Primitive, b: Primitive, c: FusionConfig) -> bool:
-    """CompareModelParameters: same kind and parameters within tolerance."""
+    """CompareModelParameters: same kind and parameters within tolerance (boxes: axes)."""
     ma, mb = a.model, b.model
     if ma.kind != mb.kind:
         return False
@@ -142,14 +155,10 @@ def compare_models(a: Primitive, b: Primitive, c: FusionConfig) -> bool:
             abs(ma.radius - mb.radius) < c.radius
             and np.linalg.norm(ma.center - mb.center) < c.center
         )
-    # boxes: the same size along matching axes, centres close
+    # boxes: the same axes. Not the same size: a box seen from one side is cut short where
+    # the view ends, and a later view sees more of it; Eq. 3.8's coverage tells the rest
     R = np.abs(ma.rotation.T @ mb.rotation)
-    if np.any(R.max(axis=1) < np.cos(np.radians(c.axis_angle_deg))):
-        return False
-    matched = mb.extent[R.argmax(axis=1)]
-    return bool(
-        np.all(np.abs(ma.extent - matched) < c.extent + 0.3 * np.minimum(ma.extent, matched))
-    )
+    return bool(np.all(R.max(axis=1) >= np.cos(np.radians(c.axis_angle_deg))))
 
 
 def voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -217,13 +226,30 @@ def refit(base: Primitive, points: np.ndarray, pid: int) -> Primitive:
             update={"id": pid, "model": model, "obb": obb, "inlier_count": len(points)}
         )
     elif m.kind == "sphere":
+        # centre and radius from all the points seen so far (algebraic fit: |p|² = 2c·p + k)
+        A = np.column_stack([2 * points, np.ones(len(points))])
+        sol, *_ = np.linalg.lstsq(A, (points**2).sum(1), rcond=None)
+        center, k = sol[:3], sol[3]
+        r2 = k + center @ center
+        if r2 > 0 and abs(np.sqrt(r2) - m.radius) < 0.5 * m.radius:
+            model = SphereModel(center=center, radius=float(np.sqrt(r2)))
+            obb = Obb(center=center, rotation=R, extent=np.full(3, 2 * model.radius))
+            return base.model_copy(
+                update={"id": pid, "model": model, "obb": obb, "inlier_count": len(points)}
+            )
         model = m
-    else:
-        obb = _frame_obb(points, m.rotation)
-        model = BoxModel(
-            center=obb.center, rotation=m.rotation, extent=np.maximum(obb.extent, m.extent)
-        )
-        obb = Obb(center=obb.center, rotation=m.rotation, extent=model.extent)
+    else:  # a box grows where a share of its points lie clearly beyond a face (a part of it
+        # seen for the first time), and keeps its faces where they were fitted otherwise:
+        # the noise of the points would inflate it a little with every view
+        R = m.rotation
+        local = points @ R
+        c = m.center @ R
+        lo, hi = c - m.extent / 2, c + m.extent / 2
+        p_lo, p_hi = np.percentile(local, 2, axis=0), np.percentile(local, 98, axis=0)
+        lo = np.where(p_lo < lo - BOX_GROWTH, p_lo, lo)
+        hi = np.where(p_hi > hi + BOX_GROWTH, p_hi, hi)
+        model = BoxModel(center=R @ ((lo + hi) / 2), rotation=R, extent=hi - lo)
+        obb = Obb(center=model.center, rotation=R, extent=model.extent)
         return base.model_copy(
             update={"id": pid, "model": model, "obb": obb, "inlier_count": len(points)}
         )
@@ -231,6 +257,33 @@ def refit(base: Primitive, points: np.ndarray, pid: int) -> Primitive:
     return base.model_copy(
         update={"id": pid, "model": model, "obb": obb, "inlier_count": len(points)}
     )
+
+
+def on_surface(p: Primitive, points: np.ndarray, tolerance: float) -> bool:
+    """Do the points lie on ``p``'s surface (median distance within ``tolerance``)? A part
+    of a box seen again does; a tray lying on the table box, 2 cm above it, does not."""
+    return len(points) > 0 and float(np.median(p.model.distance(points))) <= tolerance
+
+
+def _z_range(obb: Obb) -> tuple[float, float]:
+    """Lowest and highest z of an OBB's corners."""
+    reach = float(np.abs(obb.rotation[2]) @ (obb.extent / 2))
+    return float(obb.center[2]) - reach, float(obb.center[2]) + reach
+
+
+def _under(p: Primitive, grounds: list[Primitive], tolerance: float) -> bool:
+    """Is ``p`` part of the furniture below a ground surface: its top not above the
+    surface's (plus ``tolerance``), its centre inside the surface's footprint?"""
+    top = _z_range(p.obb)[1]
+    for g in grounds:
+        if g is p or top > _z_range(g.obb)[1] + tolerance:
+            continue
+        local = (p.obb.center - g.obb.center) @ g.obb.rotation
+        k = int(np.argmax(np.abs(g.obb.rotation[2])))  # the surface's vertical axis
+        others = [m for m in range(3) if m != k]
+        if np.all(np.abs(local[others]) <= g.obb.extent[others] / 2 + tolerance):
+            return True
+    return False
 
 
 def in_frustum(obb: Obb, obs: SceneObservation) -> bool:
@@ -294,6 +347,9 @@ class Fusion:
             pts = phi.inliers.astype(np.float64)
             outcome, target = "add", None
             best = 0.0
+            if phi.model.kind in SOLIDS and self._spans_objects(phi, visible):
+                result.dropped += 1  # one solid around several the memory tells apart: a
+                continue  # segment that merged touching objects, not a better view of one
             for psi in visible:
                 if psi.id not in self.prims:
                     continue
@@ -309,27 +365,57 @@ class Fusion:
                 if not obbs_intersect(psi.primitive.obb, phi.obb, reach):
                     continue
                 kinds = {phi.model.kind, psi.primitive.model.kind}
-                if kinds == {"box", "plane"}:  # a face seen alone, and the box it belongs to
+                if "plane" in kinds and len(kinds & SOLIDS) == 1:
+                    # a face seen alone (a box's side, a cylinder's cap), and its solid
                     in_new = inlier(pts, psi.primitive.obb, c.obb_margin)
                     in_old = inlier(psi.points, phi.obb, c.obb_margin)
-                    if phi.model.kind == "plane" and in_new > c.lambda_o:
+                    tol = c.surface_tolerance
+                    if (
+                        phi.model.kind == "plane"
+                        and in_new > c.lambda_o
+                        and on_surface(psi.primitive, pts, tol)
+                    ):
                         decision = "covered"
-                    elif psi.primitive.model.kind == "plane" and in_old > c.lambda_o:
+                    elif (
+                        psi.primitive.model.kind == "plane"
+                        and in_old > c.lambda_o
+                        and on_surface(phi, psi.points, tol)
+                    ):
                         decision = "replace"
                     else:
                         continue
                     if outcome == "add" or max(in_new, in_old) > best:
                         outcome, target, best = decision, psi, max(in_new, in_old)
                     continue
-                if not compare_models(phi, psi.primitive, c):
+                solids = kinds <= SOLIDS
+                if not solids and not compare_models(phi, psi.primitive, c):
                     continue
                 in_new = inlier(pts, psi.primitive.obb, c.obb_margin)
                 in_old = inlier(psi.points, phi.obb, c.obb_margin)
-                if in_new > c.lambda_o and in_old > c.lambda_o:
+                # a cylinder or sphere of the same parameters overlapping it is it (a box's
+                # extent is no such parameter: a part seen is smaller than the whole)
+                same_model = (
+                    phi.model.kind == psi.primitive.model.kind != "box"
+                    and compare_models(phi, psi.primitive, c)
+                    and max(in_new, in_old) > c.lambda_p
+                )
+                if solids and max(in_new, in_old) <= c.lambda_o and not same_model:
+                    continue  # two solids are one only when one covers the other
+                # solids are one only where the points of one lie on the other's surface (a
+                # tray on the table box lies inside its OBB's margin, 2 cm above its top)
+                on_old = not solids or on_surface(psi.primitive, pts, c.surface_tolerance)
+                on_new = not solids or on_surface(phi, psi.points, c.surface_tolerance)
+                if same_model or (
+                    in_new > c.lambda_o and in_old > c.lambda_o and (on_old or on_new)
+                ):
                     decision = "same"
-                elif in_new > c.lambda_o and in_old < c.lambda_p:
-                    decision = "covered"
-                elif in_old > c.lambda_o and in_new < c.lambda_p:
+                elif on_old and (
+                    in_new >= c.contained or (in_new > c.lambda_o and in_old < c.lambda_p)
+                ):
+                    decision = "covered"  # φ ⊂ ψ (Algorithm 2's first test), or mostly
+                elif on_new and (
+                    in_old >= c.contained or (in_old > c.lambda_o and in_new < c.lambda_p)
+                ):
                     decision = "replace"
                 elif phi.model.kind == "plane" and max(in_new, in_old) < c.lambda_o:
                     decision = "same"  # a piece of the same plane
@@ -359,19 +445,81 @@ class Fusion:
             result.mapping[phi.id] = mid
             result.added += 1
         self._combine_support(obs, result.mapping)
+        result.removed += self._consolidate(set(result.mapping.values()), visible, result)
         self.n_views += 1
         self.version += 1
         self.last = result
         return result
 
+    def _spans_objects(
+        self, p: Primitive, candidates: list[MemoryPrimitive], limit: int = 2
+    ) -> bool:
+        """Does ``p`` hold what the memory knows as separate things: ``limit`` or more
+        solids, or planes off its surface (a box's own faces lie on it), or two primitives
+        of which one supports the other? Inside: Inlier ≥ ``contained``."""
+        c = self.config
+        inside, things = set(), 0
+        for m in candidates:
+            if m.id not in self.prims or not obbs_intersect(m.primitive.obb, p.obb, c.obb_margin):
+                continue
+            if inlier(m.points, p.obb, c.obb_margin) < c.contained:
+                continue
+            inside.add(m.id)
+            kind = m.primitive.model.kind
+            face = kind == "plane" and on_surface(p, m.points, c.face_distance)
+            things += kind in SOLIDS or not face
+        return things >= limit or any(a in inside and b in inside for a, b in self.occ)
+
+    def _consolidate(
+        self, touched: set[int], visible: list[MemoryPrimitive], result: Update
+    ) -> int:
+        """Pieces the memory holds of what a primitive of this view turned out to be: a face
+        kept as a plane before its box was seen (Algorithm 2 compares the new view with the
+        memory, never the memory with itself, so the order of the views decided). A plane
+        whose points lie inside a solid touched by this view (> λ_o), or a solid inside
+        another (φ ⊂ ψ), joins it. Returns how many primitives went."""
+        c = self.config
+        gone = 0
+        for t in sorted(touched):
+            if t not in self.prims or self.prims[t].primitive.model.kind not in SOLIDS:
+                continue
+            solid = self.prims[t]
+            others = {m.id: m for m in visible} | {
+                i: self.prims[i] for i in touched if i in self.prims
+            }
+            if self._spans_objects(solid.primitive, list(others.values()), limit=3):
+                continue  # itself and two more: it spans objects the memory tells apart
+            for m in others.values():
+                if m.id == t or m.id not in self.prims or t not in self.prims:
+                    continue
+                if not obbs_intersect(solid.primitive.obb, m.primitive.obb, c.obb_margin):
+                    continue
+                share = inlier(m.points, solid.primitive.obb, c.obb_margin)
+                kind = m.primitive.model.kind
+                if (
+                    (kind == "plane" and share > c.lambda_o)
+                    or (kind in SOLIDS and share >= c.contained)
+                ) and on_surface(solid.primitive, m.points, c.surface_tolerance):
+                    self.prims.pop(m.id)
+                    self._merge_into(solid, m.points.astype(np.float64))
+                    self._rename_edges(m.id, t)
+                    for k, v in result.mapping.items():
+                        if v == m.id:
+                            result.mapping[k] = t
+                    gone += 1
+        return gone
+
     def _floor_height(self, obs: SceneObservation) -> float | None:
-        """Height of the lowest level plane known (memory or this view): the floor."""
+        """Height of the lowest level plane known (memory or this view): the floor; None
+        while none is near the world's ground (z = 0): a table top is no floor, and a tray
+        on it is not a piece of one."""
         heights = [
             -p.model.d / p.model.normal[2]
             for p in [m.primitive for m in self.prims.values()] + list(obs.primitives)
             if p.model.kind == "plane" and abs(p.model.normal[2]) > np.cos(np.radians(10))
         ]
-        return min(heights) if heights else None
+        lowest = min(heights, default=None)
+        return lowest if lowest is not None and lowest < self.config.floor_max else None
 
     def _rename_edges(self, old: int, new: int) -> None:
         for (a, b), n in list(self.occ.items()):
@@ -398,6 +546,33 @@ class Fusion:
 
     # -- the model as a message ---------------------------------------------------------------
 
+    def support(self) -> dict[tuple[int, int], int]:
+        """The support edges with occ(e) that the fused geometry allows. A ground surface (a
+        level surface of ``ground_area``: a table top) and what lies under it within its
+        footprint (its legs, its edge's faces, a shelf below) rest only on ground (the
+        floor): legs holding a top up are parts of one piece of furniture, which the scene
+        model cannot tell apart. And the supported one's bottom is not below the
+        supporter's top (a box seen beside a shorter one, its lower part hidden by it,
+        seemed to rest on it in that view)."""
+        c = self.config
+        grounds = [
+            m.primitive
+            for m in self.prims.values()
+            if self._level_area(m.primitive) >= c.ground_area
+        ]
+        out = {}
+        for (a, b), n in self.occ.items():
+            pa, pb = self.prims[a].primitive, self.prims[b].primitive
+            on_ground = self._level_area(pa) >= c.ground_area
+            if not on_ground and (
+                self._level_area(pb) >= c.ground_area or _under(pb, grounds, c.rest_tolerance)
+            ):
+                continue
+            if _z_range(pb.obb)[0] < _z_range(pa.obb)[1] - c.rest_tolerance:
+                continue
+            out[a, b] = n
+        return out
+
     def unstable(self) -> tuple[int | None, list[int]]:
         """ρ (the lowest primitive) and the primitives with no support chain to the ground."""
         if not self.prims:
@@ -414,7 +589,7 @@ class Fusion:
             if self._level_area(m.primitive) >= self.config.ground_area
         }
         supports: dict[int, list[int]] = {}
-        for a, b in self.occ:
+        for a, b in self.support():
             supports.setdefault(a, []).append(b)
         stable, queue = set(ground), deque(ground)
         while queue:
@@ -466,7 +641,7 @@ class Fusion:
             spatial_edges=[SpatialEdge(a=a, b=b) for a, b in self.spatial_edges()],
             support_edges=[
                 SupportEdge(supporter=a, supported=b, occ=n)
-                for (a, b), n in sorted(self.occ.items())
+                for (a, b), n in sorted(self.support().items())
             ],
             root_id=root,
             unstable_ids=unstable,

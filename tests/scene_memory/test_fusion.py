@@ -121,3 +121,46 @@ def test_what_is_out_of_view_is_not_touched():
     other = cylinder(1, (5.8, 0.1, 0), 0.04, 0.2, 0.0)
     update = fusion.update(observation(1, [other], T=camera_above(5.9)))
     assert update.added == 1 and len(fusion.prims) == 2
+
+
+def test_one_static_surface_seen_again_and_again_stays_one_primitive():
+    """A table top seen as boxes of different extents (each view cuts it where it ends), and a
+    leg seen once as a box and once as a cylinder: one primitive each, whatever the order."""
+    fusion = Fusion()
+    top_views = [((0.9, 0.0, 0.73), (0.8, 1.2, 0.04)), ((0.75, 0.1, 0.73), (0.5, 0.9, 0.04)),
+                 ((0.95, -0.1, 0.73), (0.7, 0.6, 0.04))]  # fmt: skip
+    for i, (centre, extent) in enumerate(top_views):
+        leg = (box(2, (0.55, -0.5, 0.35), (0.05, 0.05, 0.7)) if i % 2 else
+               cylinder(2, (0.55, -0.5, 0.0), 0.025, 0.7, 0.0))  # fmt: skip
+        fusion.update(observation(i, [plane(0, **FLOOR), box(1, centre, extent), leg]))
+    assert kinds(fusion) == ["box", "box", "plane"] or kinds(fusion) == ["box", "cylinder", "plane"]
+    top = next(m for m in fusion.prims.values() if m.primitive.obb.extent.max() > 0.5
+               and m.primitive.model.kind == "box")  # fmt: skip
+    np.testing.assert_allclose(top.primitive.obb.extent, [0.8, 1.2, 0.04], atol=0.03)
+
+
+def test_a_cap_seen_alone_joins_its_cylinder():
+    fusion = Fusion()
+    fusion.update(observation(0, [plane(0, **FLOOR), cylinder(1, (0.8, 0.1, 0.75), 0.05, 0.12, 0)]))
+    cap = plane(2, (0.76, 0.84), (0.06, 0.14), 0.87)  # its top, seen from above, alone
+    update = fusion.update(observation(1, [plane(0, **FLOOR), cap]))
+    assert kinds(fusion) == ["cylinder", "plane"] and update.added == 0
+
+
+def test_support_edges_the_fused_geometry_rules_out_are_not_in_the_model():
+    """Legs do not support the table top they are part of (a ground surface rests on ground
+    only), and a box standing beside a shorter one (its lower part hidden in one view) does
+    not rest on it once the memory knows it reaches the table."""
+    fusion = Fusion()
+    table = plane(1, (0.4, 1.4), (-0.4, 0.4), 0.75)
+    leg = box(2, (0.45, -0.35, 0.37), (0.05, 0.05, 0.74))
+    short = box(3, (0.8, 0.0, 0.80), (0.1, 0.1, 0.1))
+    tall = box(4, (0.91, 0.0, 0.85), (0.1, 0.1, 0.2))
+    edges = [(0, 1), (2, 1), (1, 3), (3, 4), (0, 2)]
+    fusion.update(observation(0, [plane(0, **FLOOR), table, leg, short, tall], edges))
+    ids = {round(float(m.primitive.obb.center[2]), 2): i for i, m in fusion.prims.items()}
+    floor, top, leg_id, short_id, tall_id = (ids[z] for z in (0.0, 0.75, 0.37, 0.8, 0.85))
+    assert set(fusion.occ) == {(floor, top), (leg_id, top), (top, short_id),
+                               (short_id, tall_id), (floor, leg_id)}  # fmt: skip
+    kept = {(e.supporter, e.supported) for e in fusion.scene_model().support_edges}
+    assert kept == {(floor, top), (top, short_id), (floor, leg_id)}
