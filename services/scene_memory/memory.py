@@ -52,7 +52,7 @@ class SceneMemory:
         if roi is not None:
             unknown = self.occupancy.counts(*roi)[0]
             rays = self.occupancy.unknown_on_rays(
-                frame.depth, K.fx, K.fy, K.cx, K.cy, T, roi, self.config.depth_min, max_range
+                frame.depth, (K.fx, K.fy, K.cx, K.cy), T, roi, self.config.depth_min, max_range
             )
         n = self.occupancy.integrate_depth(
             frame.depth, K.fx, K.fy, K.cx, K.cy, T, self.config.depth_min, max_range

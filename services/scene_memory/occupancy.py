@@ -35,6 +35,26 @@ def logit(p: float) -> float:
     return math.log(p / (1 - p))
 
 
+def depth_points(
+    depth: np.ndarray,
+    intrinsics: tuple[float, float, float, float],
+    T_world_camera: np.ndarray,
+    depth_min: float = 0.0,
+    depth_max: float = np.inf,
+    every: int = 1,
+) -> np.ndarray:
+    """World points (n, 3) of every ``every``-th pixel (row-major) of a depth image with a
+    return in (depth_min, depth_max] (0 / NaN: none). ``intrinsics``: fx, fy, cx, cy."""
+    fx, fy, cx, cy = intrinsics
+    z = np.asarray(depth, np.float64)
+    v, u = np.divmod(np.arange(0, z.size, every), z.shape[1])
+    d = z.ravel()[::every]
+    ok = np.isfinite(d) & (d > depth_min) & (d <= depth_max)
+    d, u, v = d[ok], u[ok], v[ok]
+    cam = np.column_stack([(u - cx) / fx * d, (v - cy) / fy * d, d])
+    return cam @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
+
+
 @dataclass(frozen=True)
 class OccupancyConfig:
     voxel: float = 0.01
@@ -393,20 +413,13 @@ class OccupancyMap:
         max_range: float | None = None,
     ) -> int:
         """Insert a depth image (metres along the optical axis; 0 / NaN = no return, skipped)."""
-        z = np.asarray(depth, np.float64)
-        v, u = np.nonzero(np.isfinite(z) & (z > depth_min))
-        d = z[v, u]
-        cam = np.column_stack([(u - cx) / fx * d, (v - cy) / fy * d, d])
-        world = cam @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
+        world = depth_points(depth, (fx, fy, cx, cy), T_world_camera, depth_min)
         return self.integrate(world, T_world_camera[:3, 3], max_range)
 
     def unknown_on_rays(
         self,
         depth: np.ndarray,
-        fx: float,
-        fy: float,
-        cx: float,
-        cy: float,
+        intrinsics: tuple[float, float, float, float],
         T_world_camera: np.ndarray,
         box: tuple[np.ndarray, np.ndarray],
         depth_min: float = 0.0,
@@ -416,14 +429,9 @@ class OccupancyMap:
         """The information gain of Eq. 4.6 a depth image realises on this map (call it before
         integrating the image): Σ over every ``every``-th pixel's ray of the unknown voxels in
         ``box`` it crosses up to its return, scaled by ``every`` (the planner's "rays"
-        measure, on the rays the view really cast)."""
+        measure, on the rays the view really cast). ``intrinsics``: fx, fy, cx, cy."""
         max_range = self.config.max_range if max_range is None else max_range
-        z = np.asarray(depth, np.float64).ravel()[::every]
-        v, u = np.divmod(np.arange(0, np.asarray(depth).size, every), np.asarray(depth).shape[1])
-        ok = np.isfinite(z) & (z > depth_min) & (z <= max_range)
-        d, u, v = z[ok], u[ok], v[ok]
-        cam = np.column_stack([(u - cx) / fx * d, (v - cy) / fy * d, d])
-        ends = cam @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
+        ends = depth_points(depth, intrinsics, T_world_camera, depth_min, max_range, every)
         index = np.array(self._index_box(*box), np.int64)
         origin = np.asarray(T_world_camera[:3, 3], np.float64)
         return float(every * _unknown_on_rays(self.L, self.lo, self.voxel, origin, ends, index))

@@ -43,7 +43,7 @@ def _owners(model: mujoco.MjModel) -> dict[str, list[int]]:
     return owners
 
 
-def _geom_half_extents(model: mujoco.MjModel, g: int) -> np.ndarray:
+def geom_half_extents(model: mujoco.MjModel, g: int) -> np.ndarray:
     size, t = model.geom_size[g], model.geom_type[g]
     if t == mujoco.mjtGeom.mjGEOM_BOX:
         return size.copy()
@@ -62,7 +62,7 @@ def _world_aabb(
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for g in geoms:
         R = data.geom_xmat[g].reshape(3, 3)
-        half = np.abs(R) @ _geom_half_extents(model, g)
+        half = np.abs(R) @ geom_half_extents(model, g)
         c = data.geom_xpos[g]
         lo, hi = np.minimum(lo, c - half), np.maximum(hi, c + half)
     return lo, hi
@@ -87,7 +87,7 @@ def objects(world: World) -> list[GroundTruthObject]:
             g = geoms[0]
             kind = mujoco.mjtGeom(m.geom_type[g]).name.removeprefix("mjGEOM_").lower()
             pose = _pose(d.geom_xmat[g].reshape(3, 3), d.geom_xpos[g])
-            size = 2 * _geom_half_extents(m, g)
+            size = 2 * geom_half_extents(m, g)
         else:
             b = body_id(m, name)
             R, p = d.xmat[b].reshape(3, 3), d.xpos[b]
@@ -95,7 +95,7 @@ def objects(world: World) -> list[GroundTruthObject]:
             for g in geoms:
                 Rg = R.T @ d.geom_xmat[g].reshape(3, 3)
                 cg = R.T @ (d.geom_xpos[g] - p)
-                half = np.abs(Rg) @ _geom_half_extents(m, g)
+                half = np.abs(Rg) @ geom_half_extents(m, g)
                 lo, hi = np.minimum(lo, cg - half), np.maximum(hi, cg + half)
             kind = "compound"
             pose = _pose(R, p + R @ ((lo + hi) / 2))

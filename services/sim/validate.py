@@ -15,6 +15,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from services.sim.ground_truth import geom_half_extents
 from services.sim.robots import BASE_JOINTS, ROBOTS, RobotInfo
 from services.sim.scene import (
     PENETRATION_TOLERANCE,
@@ -134,15 +135,6 @@ def _objects(model: mujoco.MjModel) -> dict[str, int]:
     }
 
 
-def _half_extents(model: mujoco.MjModel, g: int) -> np.ndarray:
-    size, kind = model.geom_size[g], model.geom_type[g]
-    if kind == mujoco.mjtGeom.mjGEOM_BOX:
-        return size.copy()
-    if kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
-        return np.array([size[0], size[0], size[1]])
-    return np.full(3, size[0])  # sphere: objects have no other geoms
-
-
 def _object_boxes(
     model: mujoco.MjModel, data: mujoco.MjData
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -153,7 +145,7 @@ def _object_boxes(
         name = owner_name(model, g)
         if name not in boxes:
             continue
-        reach = np.abs(data.geom_xmat[g].reshape(3, 3)) @ _half_extents(model, g)
+        reach = np.abs(data.geom_xmat[g].reshape(3, 3)) @ geom_half_extents(model, g)
         lo, hi = boxes[name]
         boxes[name] = (
             np.minimum(lo, data.geom_xpos[g] - reach),

@@ -44,7 +44,7 @@ def test_tabletop_occluded_support_graph_complete_by_view_5_and_ends_by_itself(t
     assert cost[0] == 0 and all(b >= a for a, b in pairwise(cost))
     assert np.allclose(views[0]["base"], [0, 0, 0], atol=0.02)  # the first view: robot_start
     page = (tmp_path / "report.html").read_text()
-    assert page.count("<img") == 4 and "data:image/png;base64," in page
+    assert page.count("<img") == 5 and "data:image/png;base64," in page  # + the gain plot
 
 
 @pytest.mark.timeout(1500)  # nine episodes: about five minutes here
@@ -76,5 +76,6 @@ def test_booth_occupancy_sees_most_and_utility_travels_least(tmp_path):
     assert cost["utility"] < min(cost["occupancy"], cost["random"]), cost
     print(f"booth medians: unknown voxels {unknown}, accumulated path cost {cost}")
     assert "utility" in out.stdout and (tmp_path / "report.html").is_file()
-    for name in ("f1.png", "unknown_voxels.png", "path_cost.png", "views_map.png"):
+    for name in ("f1.png", "unknown_voxels.png", "path_cost.png", "views_map.png",
+                 "information_gain.png"):  # fmt: skip
         assert (tmp_path / name).stat().st_size > 1000
