@@ -59,6 +59,11 @@ def localisation_covariance(depth: float) -> np.ndarray:
     return np.diag([0.01**2, 0.01**2, sz**2])
 
 
+#: the OKR measures slip only while fixating: the gaze angle error between two frames stayed
+#: below this (rad)
+OKR_MAX_ERROR = math.radians(1.0)
+
+
 def nearest(samples: Sequence[tuple[float, T]], stamp: float, within: float) -> T | None:
     """The sample nearest ``stamp`` among (stamp, sample) pairs in arrival order, None without
     one within ``within`` s (scanned from the newest, up to the first older than that)."""
@@ -100,6 +105,7 @@ class GazeNode:
         # second, so no frame's or observation's work can hold up a head command
         self.lock = threading.Lock()
         self.stab_lock = threading.Lock()
+        self.out_lock = threading.RLock()  # cmd/head: a step's command and a hold's zero in order
         self.joint_state: JointState | None = None
         # (stamp, sample) in arrival order: joint states for OKR (1 s at 200 Hz), gyro for the VOR
         self.joint_history: deque[tuple[float, JointState]] = deque(maxlen=200)
@@ -109,6 +115,7 @@ class GazeNode:
         self.targets: dict[str, GazeTarget] = {}  # the freshest per source
         self.targets_wall: dict[str, float] = {}
         self.current: np.ndarray | None = None  # the fixation point of the last control step
+        self.error = math.inf  # the largest gaze angle error (rad) since the last OKR frame
         self.objects: list[ObjectBelief] = []
         self.chosen: np.ndarray | None = None  # ego-sphere winner (world point)
         self.chosen_at = -math.inf
@@ -176,9 +183,18 @@ class GazeNode:
         base, target = self.base, self.current
         if frame.rgb is None or base is None or target is None:
             return
+        with self.stab_lock:
+            error, self.error = self.error, 0.0
+        if error > OKR_MAX_ERROR:  # a saccade since the last frame: the image swept by and
+            self.slip_stamp = None  # tracks break (saccadic suppression: no slip across one)
+            return
         # the model's pose of the camera when the frame was taken, not when it arrived (a copy:
-        # the joint states' thread appends meanwhile)
-        js = nearest(list(self.joint_history), frame.stamp, 0.02)
+        # the joint states' thread appends meanwhile); within 60 % of the states' period (3 ms
+        # at 200 Hz): a state further off (late, or lost under load) puts the head where it
+        # was not, and the difference would be read as slip
+        history = list(self.joint_history)
+        period = (history[-1][0] - history[0][0]) / (len(history) - 1) if len(history) > 1 else 0
+        js = nearest(history, frame.stamp, 0.6 * period)
         if js is None:  # no joint state of the frame's time: no slip
             self.slip_stamp = None
             return
@@ -227,7 +243,7 @@ class GazeNode:
 
     def on_imu(self, imu: ImuSample) -> None:
         """One control step per IMU sample."""
-        self.imu_wall = time.monotonic()
+        self.imu_wall = arrived = time.monotonic()
         if self.imu_seq is not None and imu.seq > self.imu_seq + 1:  # stale ones, not taken
             self.imu_skipped += imu.seq - self.imu_seq - 1
             self.node.metrics.gauge("imu_skipped", self.imu_skipped)
@@ -262,18 +278,25 @@ class GazeNode:
                 imu.stamp,
             )
             self.current = target + self.stab.offset
-        self.out_head.put(
-            HeadCommand(
-                seq=self._seq(), stamp=imu.stamp, names=list(cmd.velocity), mode="velocity",
-                values=np.array(list(cmd.velocity.values())), source="gaze",
-                trigger_stamp=imu.stamp,
-            )
-        )  # fmt: skip
-        self.commanding = True
-        if self.holding:
-            log.info("controlling again", extra={"after": self.holding})
-            self.holding = ""
-            self.node.metrics.gauge("holding", 0)
+            self.error = max(self.error, *cmd.error_rad.values())
+        with self.out_lock:  # the watchdog's hold cannot come between
+            if time.monotonic() - arrived > self.s.stale_ms / 1e3:
+                # a step that took longer than the watchdog waits: it has held the head, and
+                # a command this late would undo that
+                self.node.metrics.drop("late_step")
+                return
+            self.out_head.put(
+                HeadCommand(
+                    seq=self._seq(), stamp=imu.stamp, names=list(cmd.velocity), mode="velocity",
+                    values=np.array(list(cmd.velocity.values())), source="gaze",
+                    trigger_stamp=imu.stamp,
+                )
+            )  # fmt: skip
+            self.commanding = True
+            if self.holding:
+                log.info("controlling again", extra={"after": self.holding})
+                self.holding = ""
+                self.node.metrics.gauge("holding", 0)
         self.steps += 1
         m = self.node.metrics
         m.gauge("fixation_error_deg", math.degrees(max(cmd.error_rad.values())))
@@ -325,6 +348,10 @@ class GazeNode:
 
     def hold(self, why: str) -> None:
         """Stop controlling: one zero-velocity command if we were commanding, and say why."""
+        with self.out_lock:
+            self._hold(why)
+
+    def _hold(self, why: str) -> None:
         if self.commanding:
             self.out_head.put(
                 HeadCommand(

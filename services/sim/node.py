@@ -164,8 +164,10 @@ class SimNode:
                 wall0, sim0 = time.monotonic(), w.time
                 due = 1
             if due > 0:
+                # in slices of at most 5 ms of sim time: commands (a head velocity lasts only
+                # 0.1 s) and queries wait at most one slice for the lock, however far behind
                 with self.lock:
-                    self.advance(due)
+                    self.advance(min(due, 5))
             else:  # sleep until the next step is due, not a whole step: late wake-ups would
                 # make the IMU come in bursts of two
                 time.sleep(max(0.0, (w.time + w.timestep - target) / speed))

@@ -17,7 +17,11 @@ from tests.perception.frames import clutter_frame
 
 KEYS = Keys()
 WORKERS = ("p-a", "p-b", "p-c")
-RATE = 30.0  # frames per second
+# frames per second: what three workers sharing two slow cores keep up with (a 320×240 frame
+# costs one 50-85 ms here); the stage's own rate is benchmarks/perception.py's to measure
+RATE = 15.0
+N = 180  # frames streamed
+KILL = 60  # the frame at which p-c is killed
 
 
 @pytest.fixture(scope="module")
@@ -65,13 +69,13 @@ def collect(client):
 def test_three_workers_process_every_frame_exactly_once(client, router, procs, small_frame):
     start_workers(procs, client, router)
     seen, sub = collect(client)
-    stream(client, small_frame, 300)
-    wait_for(lambda: len(seen) >= 300, 60, "300 observations")
+    stream(client, small_frame, N)
+    wait_for(lambda: len(seen) >= N, 60, f"{N} observations")
     time.sleep(1.0)  # nothing more comes
     seqs = sorted(s for s, _ in seen)
-    assert seqs == list(range(300)), f"{len(seqs)} observations, {len(set(seqs))} distinct"
+    assert seqs == list(range(N)), f"{len(seqs)} observations, {len(set(seqs))} distinct"
     per_worker = {w: sum(1 for _, x in seen if x == w) for w in WORKERS}
-    assert all(n >= 60 for n in per_worker.values()), per_worker  # each its share
+    assert all(n >= N / 5 for n in per_worker.values()), per_worker  # each its share
     for seq, worker in seen:  # and the share is the rendezvous owner's
         assert owner(f"head_rgbd:{seq}", WORKERS) == worker
     sub.undeclare()
@@ -84,22 +88,22 @@ def test_a_killed_worker_loses_at_most_what_it_held(client, router, procs, small
     killed_at = []
 
     def kill(i):
-        if i == 100:
+        if i == KILL:
             workers["p-c"].send_signal(signal.SIGKILL)
             killed_at.append(i)
 
-    stream(client, small_frame, 300, kill)
-    wait_for(lambda: len({s for s, _ in seen if s >= 290}) == 10, 60, "the last frames")
+    stream(client, small_frame, N, kill)
+    wait_for(lambda: len({s for s, _ in seen if s >= N - 10}) == 10, 60, "the last frames")
     time.sleep(1.0)
     seqs = [s for s, _ in seen]
     assert len(seqs) == len(set(seqs)), "a frame processed twice"
-    missing = sorted(set(range(300)) - set(seqs))
+    missing = sorted(set(range(N)) - set(seqs))
     # only frames p-c owned, from the ones it queued before it died to those sent in the
     # second the others took to see its token go
     assert all(owner(f"head_rgbd:{m}", WORKERS) == "p-c" for m in missing), missing
-    assert all(100 - 17 <= m <= 100 + RATE for m in missing), missing
-    late = {s: w for s, w in seen if s > 100 + RATE}
-    assert set(late) == set(range(int(100 + RATE) + 1, 300))  # p-c's share taken over
+    assert all(KILL - 17 <= m <= KILL + RATE for m in missing), missing
+    late = {s: w for s, w in seen if s > KILL + RATE}
+    assert set(late) == set(range(int(KILL + RATE) + 1, N))  # p-c's share taken over
     assert "p-c" not in late.values()
-    print(f"killed p-c at frame 100: {len(missing)} frames lost {missing}")
+    print(f"killed p-c at frame {KILL}: {len(missing)} frames lost {missing}")
     sub.undeclare()
