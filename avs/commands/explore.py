@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import multiprocessing
 import sys
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -53,16 +55,27 @@ def register(sub: argparse._SubParsersAction) -> None:
     _episode_arguments(c)
     c.add_argument("--strategies", default="utility,occupancy,random")
     c.add_argument("--seeds", type=int, default=3)
+    c.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="episodes run at once, each with its own router and services (an episode keeps "
+        "about one core busy)",
+    )
     c.set_defaults(func=_compare)
 
 
-def progress_bar(label: str):
+def progress_bar(label: str, lines: bool = False):
+    """Progress on stderr: a bar redrawn in place, or (``lines``, episodes running side by
+    side) one line per view."""
+
     def show(i: int, n: int, r) -> None:
         bar = "#" * int(30 * i / n)
         print(
-            f"\r{label} [{bar:<30}] view {i}/{n}  F1 {r.support_f1:.2f}  unknown "
-            f"{r.unknown_voxels}  cost {r.accumulated_path_cost:.1f} s",
-            end="",
+            f"{'' if lines else chr(13)}{label} [{bar:<30}] view {i}/{n}  F1 "
+            f"{r.support_f1:.2f}  unknown {r.unknown_voxels}  cost "
+            f"{r.accumulated_path_cost:.1f} s",
+            end="\n" if lines else "",
             file=sys.stderr,
             flush=True,
         )
@@ -70,10 +83,10 @@ def progress_bar(label: str):
     return show
 
 
-def run_episode(config, label: str) -> dict:
+def run_episode(config, label: str, lines: bool = False) -> dict:
     from avs.explore import Episode
 
-    result = Episode(config, progress_bar(label)).run().to_json()
+    result = Episode(config, progress_bar(label, lines)).run().to_json()
     detail = f": {result['termination_detail']}" if result.get("termination_detail") else ""
     print(f"  terminated by {result['terminated_by']}{detail}", file=sys.stderr, flush=True)
     return result
@@ -128,13 +141,32 @@ def summary(result: dict) -> None:
 
 def _compare(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
-    runs: dict[str, list[dict]] = {}
+    if args.jobs < 1:
+        print("avs compare: --jobs must be at least 1", file=sys.stderr)
+        return 2
     base = _config(args)
-    for strategy in [s.strip() for s in args.strategies.split(",") if s.strip()]:
-        for seed in range(args.seeds):
-            out = args.out / f"{strategy}-{seed}"
-            config = replace(base, strategy=strategy, seed=seed, out=out)
-            runs.setdefault(strategy, []).append(run_episode(config, f"{strategy} seed {seed}"))
+    strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+    episodes = [
+        (strategy, replace(base, strategy=strategy, seed=seed, out=args.out / f"{strategy}-{seed}"))
+        for strategy in strategies
+        for seed in range(args.seeds)
+    ]
+    if args.jobs == 1:
+        results = [run_episode(c, f"{s} seed {c.seed}") for s, c in episodes]
+    else:  # fresh interpreters (spawn): no Zenoh session or thread crosses a fork
+        spawn = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(args.jobs, mp_context=spawn) as pool:
+            results = list(
+                pool.map(
+                    run_episode,
+                    [c for _, c in episodes],
+                    [f"{s} seed {c.seed}" for s, c in episodes],
+                    [True] * len(episodes),
+                )
+            )
+    runs: dict[str, list[dict]] = {}
+    for (strategy, _), result in zip(episodes, results, strict=True):
+        runs.setdefault(strategy, []).append(result)
     (args.out / "metrics.json").write_text(json.dumps(runs, indent=2))
     page = write_outputs(args.out, runs, f"{args.scene}: strategies compared")
     for strategy, episodes in runs.items():

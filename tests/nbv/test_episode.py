@@ -47,7 +47,7 @@ def test_tabletop_occluded_support_graph_complete_by_view_5_and_ends_by_itself(t
     assert page.count("<img") == 5 and "data:image/png;base64," in page  # + the gain plot
 
 
-@pytest.mark.timeout(1500)  # nine episodes: about five minutes here
+@pytest.mark.timeout(1500)  # nine episodes, two at a time: about six minutes here
 def test_booth_occupancy_sees_most_and_utility_travels_least(tmp_path):
     """Fig. 4.11 / 4.12 over 3 seeds, 6 views each, view spheres around the three meeting
     points: greedy occupancy leaves the fewest unknown voxels, the utility (IG against path
@@ -56,7 +56,7 @@ def test_booth_occupancy_sees_most_and_utility_travels_least(tmp_path):
     minutes."""
     out = run(
         ["compare", "--scene", "booth", "--strategies", "utility,occupancy,random",
-         "--seeds", "3", "--views", "6", "--voxel", "0.02", "--out", str(tmp_path)],
+         "--seeds", "3", "--views", "6", "--voxel", "0.02", "--jobs", "2", "--out", str(tmp_path)],
         timeout=1500,
     )  # fmt: skip
     runs = json.loads((tmp_path / "metrics.json").read_text())
