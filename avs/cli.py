@@ -20,6 +20,7 @@ from avs.commands import (
     status,
     up,
 )
+from avs.commands._args import OneLineParser
 from services.common.log import setup_logging
 
 COMMANDS = (
@@ -39,7 +40,7 @@ COMMANDS = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="avs",
         description="AVS, the Active Vision Stack: semantic scene understanding and "
         "next-best-view planning for humanoid robots, as Zenoh services.",

@@ -61,7 +61,13 @@ class SimControl(Message):
     scene: str | None = None
     robot: str | None = None
     seed: int | None = None
-    n: int = Field(1, ge=1)
+    n: int = Field(
+        1,
+        ge=1,
+        le=10_000,
+        description="physics steps of one step request: at most 10,000 (10 s of sim time at "
+        "1 ms), so that no query holds the sim for long",
+    )
     joint: str | None = None
     amplitude: float = 0.0
     frequency: float = Field(0.0, ge=0)

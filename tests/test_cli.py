@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -42,6 +43,39 @@ def test_every_command_has_help(command):
     out = subprocess.run([*AVS, *command, "--help"], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "usage: avs" in out.stdout
+
+
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["explore", "--views", "-1"],
+        ["compare", "--jobs", "0"],
+        ["fuse", "--voxel", "nan"],
+        ["run", "--views", "0"],
+        ["explore", "--voxel", "fine"],
+    ],
+    ids=" ".join,
+)
+def test_an_argument_out_of_range_fails_in_one_line_before_anything_starts(command, tmp_path):
+    out = subprocess.run([*AVS, *command, "--out", str(tmp_path / "out")], capture_output=True,
+                         text=True, timeout=60)  # fmt: skip
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and command[1] in lines[0], out.stderr
+    assert not (tmp_path / "out").exists()  # nothing started, nothing written
+
+
+def test_rendering_needs_no_mujoco_gl(tmp_path):
+    """Without MUJOCO_GL and without a display, avs picks EGL itself."""
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("MUJOCO_GL", "DISPLAY", "PYOPENGL_PLATFORM")
+    }
+    out = subprocess.run([*AVS, "perceive", "--scene", "tabletop_clutter", "--json"], env=env,
+                         capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert json.loads(out.stdout)["inlier_index"] > 0.8
 
 
 def test_echo_prints_valid_messages_and_counts_invalid_ones(router, client, procs):

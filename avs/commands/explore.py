@@ -14,6 +14,8 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
+from avs.commands._args import positive_float, positive_int
+
 
 def _episode_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", default="tabletop_occluded", help="scene name or MJCF file")
@@ -22,8 +24,8 @@ def _episode_arguments(p: argparse.ArgumentParser) -> None:
         "--sampling", choices=["equidistant", "random", "topdown"], default="equidistant"
     )
     p.add_argument("--fusion", choices=["pc", "sg", "pc+sg"], default="sg")
-    p.add_argument("--views", type=int, default=10, help="at most this many views (n)")
-    p.add_argument("--voxel", type=float, default=0.01, help="occupancy voxel, m")
+    p.add_argument("--views", type=positive_int, default=10, help="at most this many views (n)")
+    p.add_argument("--voxel", type=positive_float, default=0.01, help="occupancy voxel, m")
     p.add_argument(
         "--ig-measure",
         choices=["volume", "rays"],
@@ -54,10 +56,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _episode_arguments(c)
     c.add_argument("--strategies", default="utility,occupancy,random")
-    c.add_argument("--seeds", type=int, default=3)
+    c.add_argument("--seeds", type=positive_int, default=3)
     c.add_argument(
         "--jobs",
-        type=int,
+        type=positive_int,
         default=1,
         help="episodes run at once, each with its own router and services (an episode keeps "
         "about one core busy)",
@@ -141,9 +143,6 @@ def summary(result: dict) -> None:
 
 def _compare(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
-    if args.jobs < 1:
-        print("avs compare: --jobs must be at least 1", file=sys.stderr)
-        return 2
     base = _config(args)
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
     episodes = [

@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from avs.commands._args import positive_float, positive_int
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -30,9 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scene", default="kitchen")
     p.add_argument("--robot", default="armar6")
     p.add_argument("--path", default="orbit", help="orbit | line | FILE (JSON list of [x, y])")
-    p.add_argument("--views", type=int, default=20)
+    p.add_argument("--views", type=positive_int, default=20)
     p.add_argument("--fusion", choices=["pc", "sg", "pc+sg"], default="sg")
-    p.add_argument("--voxel", type=float, default=0.01, help="occupancy voxel, m")
+    p.add_argument("--voxel", type=positive_float, default=0.01, help="occupancy voxel, m")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=_fuse)

@@ -10,6 +10,7 @@ import json
 import sys
 from pathlib import Path
 
+from avs.commands._args import positive_int
 from avs.commands.explore import run_episode, summary, write_outputs
 
 
@@ -21,7 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--scene", default="tabletop_occluded")
-    parser.add_argument("--views", type=int, default=10)
+    parser.add_argument("--views", type=positive_int, default=10)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("runs/explore"))
     parser.set_defaults(func=_run)

@@ -278,8 +278,9 @@ class SimNode:
                 self._gt_cache = None
             return self.status()
         if op == "step":
-            with self.lock:
-                self.advance(request.n)
+            for start in range(0, request.n, 100):  # in slices: commands land between them
+                with self.lock:
+                    self.advance(min(100, request.n - start))
             return self.status()
         if op == "render":
             self.worker.submit(self.publish_frames)

@@ -139,6 +139,14 @@ def test_commands_and_streams_over_zenoh(client, router, procs):
     wait_for(lambda: _metric_drops(client, "cmd") >= 2, 30, "the sim to take the commands")
     status = control(client, op="step", n=4000)
     assert status.sim_time == pytest.approx(4.0, abs=1e-6)
+    # a billion steps would hold the sim for hours: refused before any work, naming the limit
+    huge = SimControl.model_construct(**{**SimControl(op="step").model_dump(), "n": 10**9})
+    (reply,) = client.get(KEYS.sim_control(), payload=encode(huge), timeout=10)
+    assert (
+        reply.err is not None
+        and "less than or equal to 10000" in reply.err.payload.to_bytes().decode(errors="replace")
+    )
+    assert control(client, op="status").sim_time == pytest.approx(4.0, abs=1e-6)
     wait_for(lambda: len(imu.messages()) >= 4000 and len(base.messages()) >= 800, 30, "the streams")
     samples: list[ImuSample] = imu.messages()
     assert len(samples) == 4000  # 1 kHz in sim time
