@@ -71,13 +71,14 @@ def progress_bar(label: str, lines: bool = False):
     """Progress on stderr: a bar redrawn in place, or (``lines``, episodes running side by
     side) one line per view."""
 
+    start, end = ("", "\n") if lines else ("\r", "")
+
     def show(i: int, n: int, r) -> None:
         bar = "#" * int(30 * i / n)
         print(
-            f"{'' if lines else chr(13)}{label} [{bar:<30}] view {i}/{n}  F1 "
-            f"{r.support_f1:.2f}  unknown {r.unknown_voxels}  cost "
-            f"{r.accumulated_path_cost:.1f} s",
-            end="\n" if lines else "",
+            f"{start}{label} [{bar:<30}] view {i}/{n}  F1 {r.support_f1:.2f}  unknown "
+            f"{r.unknown_voxels}  cost {r.accumulated_path_cost:.1f} s",
+            end=end,
             file=sys.stderr,
             flush=True,
         )

@@ -348,23 +348,20 @@ class GazeNode:
 
     def hold(self, why: str) -> None:
         """Stop controlling: one zero-velocity command if we were commanding, and say why."""
-        with self.out_lock:
-            self._hold(why)
-
-    def _hold(self, why: str) -> None:
-        if self.commanding:
-            self.out_head.put(
-                HeadCommand(
-                    seq=self._seq(), stamp=time.time(), names=list(self.joints),
-                    mode="velocity", values=np.zeros(len(self.joints)), source="gaze",
-                )
-            )  # fmt: skip
-            self.commanding = False
-        if why != self.holding:
-            log.warning("holding the head still: %s", why)
-            self.holding = why
-            self.node.metrics.gauge("holding", 1)
-            self.node.metrics.drop("held:" + why.split(" for ")[0])
+        with self.out_lock:  # after any command a control step is sending
+            if self.commanding:
+                self.out_head.put(
+                    HeadCommand(
+                        seq=self._seq(), stamp=time.time(), names=list(self.joints),
+                        mode="velocity", values=np.zeros(len(self.joints)), source="gaze",
+                    )
+                )  # fmt: skip
+                self.commanding = False
+            if why != self.holding:
+                log.warning("holding the head still: %s", why)
+                self.holding = why
+                self.node.metrics.gauge("holding", 1)
+                self.node.metrics.drop("held:" + why.split(" for ")[0])
 
     def watchdog(self) -> None:
         """Without IMU samples nothing runs the control step: hold from here."""
