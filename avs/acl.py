@@ -1,8 +1,10 @@
 """Zenoh access control of an AVS deployment, derived from the key table (SPEC §1) so the two
 cannot drift: each service may publish only the keys it produces, serve only its queryables and
 declare only its own liveliness token; the ``observer`` identity may subscribe to everything,
-query what only reads (metrics, scene memory, ground truth) and publish nothing; the operator
-identity ``avs`` (the command line: up, explore, echo…) may do anything under ``avs/``.
+query what only reads (metrics, scene memory, ground truth) and publish nothing; the
+``operator`` identity (the command line and the episode driver: up, explore, echo…) may do
+anything under ``avs/``, and it alone may query ``sim/control`` (a service may ask any other
+queryable, never to step, reset or pause the sim).
 
 ``python -m avs.acl deploy/zenoh`` writes the router configurations compose.yaml mounts,
 ``router-tcp.json5`` and ``router-tls.json5`` (``tests/test_acl.py`` checks the shipped ones are
@@ -27,7 +29,9 @@ ANY = "avs/*/"  # every robot
 EXTRA_PUBLISHES = {"nbv": ["cmd/head"]}  # the head joints of a chosen view (nbv/plan execute)
 #: what the observer may query: queryables that only read
 READ_ONLY = ["metrics/**", "memory/**", "sim/ground_truth"]
-OBSERVER, OPERATOR = "observer", "avs"
+OBSERVER, OPERATOR = "observer", "operator"
+#: queryables only the operator may ask
+OPERATOR_ONLY = ["sim/control"]
 
 
 def _keys(patterns: list[str]) -> list[str]:
@@ -60,7 +64,8 @@ def access_control() -> dict:
                                       "declare_subscriber", "declare_queryable"], everything),
         _rule("watch", ["ingress"], ["declare_subscriber", "declare_liveliness_subscriber",
                                      "liveliness_query"], everything),
-        _rule("ask", ["ingress"], ["query"], everything),
+        _rule("ask", ["ingress"], ["query"],
+              _keys([k.pattern for k in KEY_TABLE if k.pattern not in OPERATOR_ONLY])),
         _rule("answer", ["ingress"], ["reply"], everything),
         _rule("read", ["ingress"], ["query"], _keys(READ_ONLY)),
         _rule("operate", ["ingress", "egress"],

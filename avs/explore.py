@@ -451,7 +451,7 @@ class Episode:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
             stats = self._query(session, self.keys.occupancy("stats"), None, OccupancyStats)
-            if stats.frames_integrated >= frames:
+            if stats.frames_integrated + stats.frames_skipped >= frames:
                 return
             time.sleep(0.05)
         raise TimeoutError("the scene memory did not integrate the frame")

@@ -12,7 +12,13 @@ from schemas.gaze import EgoSphereSnapshot, GazeTarget
 from schemas.keys import DEFAULT_ROBOT, KEY_TABLE, Keys, KeySpec, spec_for
 from schemas.occupancy import BoxQuery, OccupancySlice, OccupancyStats
 from schemas.planning import GainRequest, Gains, NextBestView, PlanRequest, ViewCandidates
-from schemas.runtime import QueryError, ServiceMetrics, TimingSummary
+from schemas.runtime import (
+    QueryError,
+    ServiceMetrics,
+    SupervisedService,
+    SupervisorStatus,
+    TimingSummary,
+)
 from schemas.scene import (
     Affordance,
     BoxModel,
@@ -78,6 +84,8 @@ __all__ = [
     "SpatialEdge",
     "SphereModel",
     "Stamped",
+    "SupervisedService",
+    "SupervisorStatus",
     "SupportEdge",
     "TimingSummary",
     "ViewCandidates",

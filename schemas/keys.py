@@ -66,6 +66,7 @@ KEY_TABLE: tuple[KeySpec, ...] = (
     KeySpec("sim/control", ("SimControl", "SimStatus"), "queryable", "sim", note="queryable"),
     KeySpec("alive/*/*", (), "liveliness", "every service", note="liveliness token"),
     KeySpec("metrics/*/*", ("ServiceMetrics",), "queryable", "every service", note="queryable"),
+    KeySpec("supervisor", ("SupervisorStatus",), "queryable", "avs up", note="queryable: the services it keeps running"),
 )
 # fmt: on
 
@@ -152,6 +153,9 @@ class Keys:
 
     def metrics(self, service: str = "*", instance: str = "*") -> str:
         return self.key(f"metrics/{self._chunk_or_star(service)}/{self._chunk_or_star(instance)}")
+
+    def supervisor(self) -> str:
+        return self.key("supervisor")
 
     @staticmethod
     def _chunk_or_star(value: str) -> str:

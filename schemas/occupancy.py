@@ -36,6 +36,9 @@ class OccupancyStats(Stamped):
     occupied: int = Field(ge=0)
     map_version: int = Field(ge=0)
     frames_integrated: int = Field(0, ge=0)
+    frames_skipped: int = Field(
+        0, ge=0, description="depth frames not integrated: the camera had not moved (keyframes)"
+    )
     realised_volume: int = Field(
         0, description="unknown voxels of the scene's roi the last integrated frame made known"
     )

@@ -1,6 +1,8 @@
-"""Messages of the service runtime itself: metrics and query errors."""
+"""Messages of the service runtime itself: metrics, query errors, the supervisor's report."""
 
 from __future__ import annotations
+
+from typing import Literal
 
 from pydantic import Field
 
@@ -34,3 +36,21 @@ class QueryError(Message):
     """Payload of an error reply to a query."""
 
     error: str
+
+
+class SupervisedService(Model):
+    """One service instance ``avs up`` keeps running."""
+
+    service: str
+    instance: str
+    pid: int | None = None
+    state: Literal["starting", "running", "standby", "backoff", "hung", "failed", "stopped"]
+    alive: bool = Field(description="its liveliness token (or its standby token) is up")
+    restarts: int = Field(ge=0)
+    uptime_s: float = Field(ge=0, description="since its current process started")
+
+
+class SupervisorStatus(Stamped):
+    """Answer of ``supervisor``: the expected set of services and how each one is doing."""
+
+    services: list[SupervisedService] = Field(default_factory=list)

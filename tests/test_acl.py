@@ -15,6 +15,7 @@ import pytest
 import zenoh
 
 from avs import acl
+from avs.services import SERVICES
 from schemas import Keys, ServiceMetrics, SimControl, SimStatus, decode, encode
 from tests.conftest import ROOT, avs_env, free_port, liveliness_tokens, wait_for
 
@@ -42,13 +43,14 @@ def secured(tmp_path):
     config.insert_json5("transport/auth/usrpwd/dictionary_file", json.dumps(str(creds)))
     sessions = [zenoh.open(config)]
 
-    def connect(user: str, password: str | None = None) -> zenoh.Session:
+    def connect(user: str | None, password: str | None = None) -> zenoh.Session:
         c = zenoh.Config()
         c.insert_json5("mode", '"client"')
         c.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
         c.insert_json5("scouting/multicast/enabled", "false")
-        auth = {"user": user, "password": password or PASSWORDS[user]}
-        c.insert_json5("transport/auth/usrpwd", json.dumps(auth))
+        if user is not None:
+            auth = {"user": user, "password": password or PASSWORDS[user]}
+            c.insert_json5("transport/auth/usrpwd", json.dumps(auth))
         s = zenoh.open(c)
         sessions.append(s)
         return s
@@ -60,7 +62,7 @@ def secured(tmp_path):
 
 
 def test_observer_watches_everything_and_commands_nothing(secured):
-    probe, observer = secured("avs"), secured("observer")
+    probe, observer = secured("operator"), secured("observer")
     sim, gaze = secured("sim"), secured("gaze")
     seen: dict[str, list[tuple[str, bytes]]] = {"probe": [], "observer": []}
     lock = threading.Lock()
@@ -90,8 +92,10 @@ def test_observer_watches_everything_and_commands_nothing(secured):
         s.undeclare()
 
 
-def test_observer_may_read_but_not_control(secured):
-    sim, observer, operator = secured("sim"), secured("observer"), secured("avs")
+def test_only_the_operator_controls_the_sim_and_the_observer_only_reads(secured):
+    """sim/control (step, reset, pause) answers the operator alone: every service identity and
+    the observer are refused; the observer may still read metrics."""
+    sim = secured("sim")
     served = [
         sim.declare_queryable(key, lambda q, a=answer: q.reply(q.key_expr, a))
         for key, answer in (("avs/armar6/sim/control", b"ok"), ("avs/armar6/metrics/sim/s1", b"m"))
@@ -101,9 +105,14 @@ def test_observer_may_read_but_not_control(secured):
     def ask(session, key):
         return [r.ok.payload.to_bytes() for r in session.get(key, timeout=2) if r.ok]
 
-    assert ask(operator, "avs/armar6/sim/control") == [b"ok"]
-    assert ask(observer, "avs/armar6/sim/control") == []  # a command: denied
+    assert ask(secured("operator"), "avs/armar6/sim/control") == [b"ok"]
+    refused = [who for who in acl.identities() if who != "operator"]
+    assert set(refused) == {"observer", *(s.name for s in SERVICES)}
+    for who in refused:
+        assert ask(secured(who), "avs/armar6/sim/control") == [], who
+    observer = secured("observer")
     assert ask(observer, "avs/armar6/metrics/sim/s1") == [b"m"]  # reading: allowed
+    assert ask(secured("nbv"), "avs/armar6/metrics/sim/s1") == [b"m"]  # services ask the rest
     for q in served:
         q.undeclare()
 
@@ -113,13 +122,15 @@ def test_a_wrong_password_or_an_unknown_user_does_not_get_in(secured):
         secured("observer", "guess")
     with pytest.raises(zenoh.ZError):
         secured("mallory", "pw-mallory")
+    with pytest.raises(zenoh.ZError):  # no credentials at all
+        secured(None)
 
 
 @pytest.mark.timeout(120)
 def test_a_service_process_works_behind_the_secured_router(secured, procs):
     """The sim as a process with its identity: its liveliness token, queryables and streams
     pass the router's rules (what the node shell declares is what the ACL allows)."""
-    observer, operator = secured("observer"), secured("avs")
+    observer, operator = secured("observer"), secured("operator")
     env = avs_env(secured.endpoint, MUJOCO_GL="egl", AVS_USER="sim", AVS_PASSWORD=PASSWORDS["sim"])
     procs.python(["-m", "services.sim", "--instance", "sim-acl", "--fps", "0"], env=env)
     alive = Keys().alive("sim", "sim-acl")

@@ -162,3 +162,53 @@ def test_latest_only_skips_stale_samples(node, client):
     wait_for(lambda: seen and seen[-1] == 100, 10, "the newest sample")
     assert len(seen) < 20  # the rest were superseded while the handler was busy
     assert seen == sorted(seen)
+
+
+def test_garbage_cannot_evict_the_newest_valid_sample(node, client):
+    """A newest-wins input under a flood of garbage still gets the last valid sample: the
+    garbage is looked at and counted, the good one handled, the older good ones superseded."""
+    keys = Keys()
+    seen: list[int] = []
+    gate = threading.Event()
+    started = threading.Event()
+
+    def blocked(m: ImuSample) -> None:
+        seen.append(m.seq)
+        started.set()
+        gate.wait(10)  # the handler is busy while the burst arrives
+
+    node.subscribe(keys.imu(), ImuSample, blocked, latest_only=True)
+    publisher = matched_publisher(client, keys.imu())
+    publisher.put(encode(imu(0)))
+    assert started.wait(10)
+    for i in range(1, 4):
+        publisher.put(encode(imu(i)))
+    for _ in range(6):  # newer than every good sample, and fewer than the ring holds
+        publisher.put(b"\x93\x01\x02")
+    time.sleep(0.5)
+    gate.set()
+    wait_for(lambda: seen[-1:] == [3], 10, "the newest valid sample")
+    dropped = node.metrics.snapshot().dropped
+    assert sum(v for k, v in dropped.items() if k != "superseded") == 6, dropped
+    assert dropped.get("superseded") == 2, dropped  # samples 1 and 2
+    assert seen == [0, 3]
+
+
+def test_a_queued_input_runs_off_the_zenoh_callback_in_order(node, client):
+    """``queue=N``: handled in arrival order on the input's own thread, not in Zenoh's."""
+    keys = Keys()
+    seen: list[int] = []
+    threads: set[str] = set()
+
+    def slow(m: ImuSample) -> None:
+        threads.add(threading.current_thread().name)
+        seen.append(m.seq)
+        time.sleep(0.05)
+
+    node.subscribe(keys.imu(), ImuSample, slow, queue=32)
+    publisher = matched_publisher(client, keys.imu())
+    for i in range(10):
+        publisher.put(encode(imu(i)))
+    wait_for(lambda: len(seen) == 10, 10, "every queued sample")
+    assert seen == list(range(10))
+    assert len(threads) == 1 and threads.pop().endswith(":slow")

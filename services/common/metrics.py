@@ -41,6 +41,11 @@ class Metrics:
             self._dropped[reason] += 1
             return self._dropped[reason] == 1
 
+    def drop_n(self, reason: str, n: int) -> None:
+        """Count ``n`` messages dropped for ``reason`` at once (e.g. superseded by a newer)."""
+        with self._lock:
+            self._dropped[reason] += n
+
     def record(self, handler: str, seconds: float) -> None:
         with self._lock:
             self._timings[handler].append(seconds * 1e3)

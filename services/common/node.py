@@ -27,6 +27,9 @@ from services.common.transport import open_session, publisher_options
 
 M = TypeVar("M", bound=Message)
 
+#: samples a latest-only input keeps waiting: the newest valid one of them is handled
+LATEST_RING = 16
+
 
 class RemoteError(RuntimeError):
     """A queryable answered with an error."""
@@ -133,6 +136,7 @@ class Node:
         handler: Callable[..., Any],
         *,
         latest_only: bool = False,
+        queue: int = 0,
         name: str | None = None,
         with_key: bool = False,
         accept: Callable[[bytes], bool] | None = None,
@@ -140,35 +144,56 @@ class Node:
         """Call ``handler`` with every valid ``message_type`` published on ``key`` (and the
         sample's key, with ``with_key``).
 
-        With ``latest_only`` the handler runs on a thread of its own and always gets the newest
-        sample: a slow handler skips stale ones instead of queueing them. ``accept`` sees the
-        raw payload first (e.g. ``codec.peek``): a sample it refuses is not decoded at all.
+        By default the handler runs in Zenoh's callback: keep it light. With ``queue=N`` it
+        runs on a thread of its own, in arrival order, with at most N samples waiting (the
+        oldest go first when it falls behind). With ``latest_only`` it runs on a thread of its
+        own and always gets the newest *valid* sample: up to ``LATEST_RING`` waiting samples
+        are looked at newest first, so garbage published on the key cannot evict a good one,
+        and the older ones are counted as ``superseded``. ``accept`` sees the raw payload first
+        (e.g. ``codec.peek``): a sample it refuses is not decoded at all.
         """
         name = name or getattr(handler, "__name__", key)
 
-        def on_sample(sample: zenoh.Sample) -> None:
+        def validated(sample: zenoh.Sample) -> tuple[str, M | None]:
             k = str(sample.key_expr)
             self.metrics.count_in(k)
             payload = sample.payload.to_bytes()
             if accept is not None and not accept(payload):
-                return
-            message = self._decode(k, payload, message_type)
+                return k, None
+            return k, self._decode(k, payload, message_type)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            k, message = validated(sample)
             if message is not None:
                 self._handle(name, handler, message, k, with_key)
 
-        if not latest_only:
+        if not latest_only and queue <= 0:
             self._subscribers.append(self.session.declare_subscriber(key, on_sample))
             return
-        subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(1))
+        ring = LATEST_RING if latest_only else queue
+        subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
         self._subscribers.append(subscriber)
+
+        def newest_valid(first: zenoh.Sample) -> None:
+            waiting = [first]
+            while (sample := subscriber.handler.try_recv()) is not None:
+                waiting.append(sample)
+            for i, sample in enumerate(reversed(waiting)):
+                k, message = validated(sample)
+                if message is not None:
+                    older = len(waiting) - 1 - i
+                    if older:
+                        self.metrics.drop_n("superseded", older)
+                    self._handle(name, handler, message, k, with_key)
+                    return
 
         def pump() -> None:
             while not self._stop.is_set():
                 try:
                     sample = subscriber.handler.recv()
+                    newest_valid(sample) if latest_only else on_sample(sample)
                 except zenoh.ZError:  # channel closed: undeclared or session closed
                     return
-                on_sample(sample)
 
         self._start_thread(pump, f"{self.service}:{name}")
 

@@ -24,4 +24,11 @@ class SceneMemorySettings(ServiceSettings):
     roi_min: list[float] | None = Field(None, description="default box of occupancy stats")
     roi_max: list[float] | None = None
     max_range: float = Field(3.0, gt=0, description="rays clear space up to this range, m")
+    keyframe_move: float = Field(
+        0.03, ge=0, description="a depth frame is integrated once the camera moved this far, m"
+    )
+    keyframe_turn: float = Field(3.0, ge=0, description="… or turned this much, degrees")
     snapshot_every: int = Field(20, ge=1, description="updates between snapshots")
+    max_replay_s: float = Field(
+        0.5, gt=0, description="a snapshot once the journal since the last took this long"
+    )

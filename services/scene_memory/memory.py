@@ -22,6 +22,10 @@ class MemoryConfig:
     bounds_max: tuple[float, float, float] = (4.0, 2.5, 2.2)
     cloud_voxel: float = 0.01
     depth_min: float = 0.35
+    #: keyframes: a depth frame is integrated once the camera moved this far (m) or turned
+    #: this much (degrees) since the last integrated one; 0 and 0 integrate every frame
+    keyframe_move: float = 0.0
+    keyframe_turn: float = 0.0
     #: the region whose unknown voxels the views resolve (realised information gain)
     roi: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     fusion: FusionConfig = field(default_factory=FusionConfig)
@@ -40,11 +44,30 @@ class SceneMemory:
         #: the information gain the last frame realised in the roi, by both of the planner's
         #: measures: "volume" (unknown voxels it made known) and "rays" (Eq. 4.6 on its rays)
         self.realised_gain: dict[str, float] = {"volume": 0.0, "rays": 0.0}
+        self.last_keyframe: np.ndarray | None = None  # T_world_camera of the last integrated
+        self.frames_skipped = 0
+
+    def is_keyframe(self, T_world_camera: np.ndarray) -> bool:
+        """Whether a frame from this camera pose adds to the map: the camera moved more than
+        ``keyframe_move`` or turned more than ``keyframe_turn`` since the last integrated one."""
+        c, last = self.config, self.last_keyframe
+        if last is None or (c.keyframe_move <= 0 and c.keyframe_turn <= 0):
+            return True
+        moved = float(np.linalg.norm(T_world_camera[:3, 3] - last[:3, 3]))
+        cos = (np.trace(last[:3, :3].T @ T_world_camera[:3, :3]) - 1) / 2
+        turned = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        return moved > c.keyframe_move or turned > c.keyframe_turn
+
+    def skip(self) -> None:
+        """A frame that was not a keyframe: counted; it made nothing known."""
+        self.frames_skipped += 1
+        self.realised_gain = {"volume": 0.0, "rays": 0.0}
 
     def integrate(self, frame: RgbdFrame) -> int:
         """Add a depth frame to the occupancy map and the registered cloud."""
         if frame.depth is None:
             return 0
+        self.last_keyframe = np.array(frame.T_world_camera, float)
         t0 = time.perf_counter()
         K, T = frame.intrinsics, frame.T_world_camera
         max_range = min(self.config.occupancy.max_range, frame.depth_max or np.inf)

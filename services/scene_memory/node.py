@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from services.scene_memory.persistence import Store
 
 log = logging.getLogger("avs.scene_memory")
 
+#: observations waiting to be fused at most (the oldest go first when fusion falls behind)
+OBS_QUEUE = 8
+
 
 def new_memory(s: SceneMemorySettings) -> SceneMemory:
     return SceneMemory(
@@ -43,6 +47,8 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
             fusion=FusionConfig(mode=s.fusion),
             occupancy=OccupancyConfig(voxel=s.voxel, max_range=s.max_range),
             roi=(tuple(s.roi_min), tuple(s.roi_max)) if s.roi_min and s.roi_max else None,
+            keyframe_move=s.keyframe_move,
+            keyframe_turn=s.keyframe_turn,
         )
     )
 
@@ -58,6 +64,7 @@ class SceneMemoryNode:
         if standby is None:
             raise SystemExit(0)  # stopped while standing by
         self.store = Store(settings.data_dir)
+        self.replay_s = 0.0  # time the updates since the last snapshot took to apply
         self.memory, self.n = self._restore()
         k = node.keys
         self.out_scene = node.publisher(k.scene())
@@ -65,8 +72,10 @@ class SceneMemoryNode:
             node.publisher(k.rgbd("registered")) if settings.fusion != "sg" else None
         )
         self.obs_camera = "registered" if settings.fusion != "sg" else settings.camera
-        node.subscribe(k.observation(), SceneObservation, self.on_observation)
-        node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame)
+        # the work runs on the inputs' own threads, never in Zenoh's callbacks: observations
+        # in order (a few waiting at most), depth frames newest first (one at a time)
+        node.subscribe(k.observation(), SceneObservation, self.on_observation, queue=OBS_QUEUE)
+        node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame, latest_only=True)
         node.serve(k.scene(), lambda _r: self.scene())
         node.serve(k.occupancy("stats"), self.on_stats, BoxQuery)
         node.serve(k.occupancy("slice"), self.on_slice, BoxQuery)
@@ -97,17 +106,27 @@ class SceneMemoryNode:
     def _apply(memory: SceneMemory, kind: str, payload: bytes) -> None:
         if kind == "frame":
             memory.integrate(decode(payload, RgbdFrame))
+        elif kind == "skip":
+            memory.skip()
         else:
             memory.fuse(decode(payload, SceneObservation))
 
     def _update(self, kind: str, message) -> None:
-        payload = encode(message)
+        payload = encode(message) if message is not None else b""
         with self.lock:
             self.n += 1
             self.store.append(self.n, kind, payload)  # journaled before it is applied
+            t0 = time.perf_counter()
             self._apply(self.memory, kind, payload)
-            if self.n % self.settings.snapshot_every == 0:
+            # what a restart would replay is bounded: a snapshot every so many updates, or
+            # sooner once applying the journal since the last one took max_replay_s
+            self.replay_s += time.perf_counter() - t0
+            if (
+                self.n % self.settings.snapshot_every == 0
+                or self.replay_s >= self.settings.max_replay_s
+            ):
                 self.store.snapshot(self.memory, self.n)
+                self.replay_s = 0.0
             for key, value in self.memory.timings_ms.items():
                 self.node.metrics.gauge(key, value)
 
@@ -115,7 +134,11 @@ class SceneMemoryNode:
         if frame.depth is None:
             self.node.drop("no_depth", self.node.keys.rgbd(frame.camera), "frame has no depth")
             return
-        self._update("frame", frame)
+        if self.memory.is_keyframe(frame.T_world_camera):
+            self._update("frame", frame)
+        else:
+            self._update("skip", None)
+            self.node.metrics.gauge("frames_skipped", self.memory.frames_skipped)
         if self.out_registered is not None:
             with self.lock:
                 view = registered_view(self.memory, frame)
@@ -156,6 +179,7 @@ class SceneMemoryNode:
                 occupied=occupied,
                 map_version=occ.version,
                 frames_integrated=occ.frames,
+                frames_skipped=getattr(self.memory, "frames_skipped", 0),
                 realised_volume=int(realised["volume"]),
                 realised_rays=realised["rays"],
             )

@@ -1,69 +1,105 @@
 """Nothing is lost on restart: every accepted update is journaled before it is applied, and
-snapshots are written every so often; on start the latest snapshot is loaded and the journal
-after it replayed.
+snapshots are written every so often; on start the latest good snapshot is loaded and the
+journal after it replayed.
 
 Data directory layout:
 
-- ``snapshot.pkl``: the whole memory (fusion, occupancy map, registered cloud) and the number
-  of the last update it contains; written to a temporary file and renamed, so it is either
-  the old one or the new one, never half of one;
-- ``journal.log``: msgpack maps ``{"n": update number, "kind": "frame" | "observation",
-  "payload": the message's bytes}``, one per update, flushed and fsynced. A record cut short by
-  a crash (kill -9) is the update in flight: it is ignored.
+- ``snapshot.avs``: the whole memory (fusion, occupancy map, registered cloud) and the number
+  of the last update it contains, as data (``state.py``: msgpack + npz, versioned, sha-256);
+  written to a temporary file and renamed, so it is either the old one or the new one;
+- ``snapshot.prev.avs``: the one before it, used when the latest is refused (truncated,
+  bit-flipped, of another version);
+- ``journal.log``: msgpack maps ``{"n": update number, "kind": "frame" | "observation" |
+  "skip", "payload": the message's bytes}``, one per update after the latest snapshot, flushed
+  and fsynced. A record cut short by a crash (kill -9) is the update in flight: it is ignored;
+- ``journal.prev.log``: the records between the previous snapshot and the latest.
+
+Restoring replays, from both journals, the records after the snapshot used, in order, and
+stops at a gap (a state is never built on a missing update).
 """
 
 from __future__ import annotations
 
 import logging
 import os
-import pickle
 from pathlib import Path
 
 import msgpack
 
+from services.scene_memory import state as state_file
+
 log = logging.getLogger("avs.scene_memory")
+
+Record = tuple[int, str, bytes]
 
 
 class Store:
     def __init__(self, directory: Path) -> None:
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
-        self.snapshot_path = self.directory / "snapshot.pkl"
+        self.snapshot_path = self.directory / "snapshot.avs"
+        self.previous_path = self.directory / "snapshot.prev.avs"
         self.journal_path = self.directory / "journal.log"
+        self.previous_journal = self.directory / "journal.prev.log"
         self._journal = None
+        if (self.directory / "snapshot.pkl").exists():
+            log.warning(
+                "snapshot.pkl ignored: pickle snapshots are no longer loaded (they can run code);"
+                " the state restarts from snapshot.avs and the journal",
+                extra={"path": str(self.directory / "snapshot.pkl")},
+            )
 
-    def load(self) -> tuple[object | None, int, list[tuple[int, str, bytes]]]:
+    def _snapshot(self) -> tuple[object | None, int]:
+        """The latest snapshot that passes its checks, else the previous one, else none."""
+        for path in (self.snapshot_path, self.previous_path):
+            if not path.exists():
+                continue
+            try:
+                return state_file.load(path.read_bytes())
+            except state_file.StateError as e:
+                log.error("snapshot refused: %s", e, extra={"path": str(path)})
+        return None, 0
+
+    def load(self) -> tuple[object | None, int, list[Record]]:
         """(the snapshot's state or None, its update number, the journal records after it).
         A record cut short at the journal's end (the update in flight at a crash) is cut off
         the file, so the records appended after a restart follow whole ones."""
-        state, n = None, 0
-        if self.snapshot_path.exists():
-            with open(self.snapshot_path, "rb") as f:
-                state, n = pickle.load(f)
-        records: list[tuple[int, str, bytes]] = []
-        if not self.journal_path.exists():
-            return state, n, records
+        state, n = self._snapshot()
+        records: dict[int, Record] = {}
+        for path in (self.previous_journal, self.journal_path):
+            for record in self._read(path, truncate=path == self.journal_path):
+                if record[0] > n:
+                    records[record[0]] = record
+        replay: list[Record] = []
+        for number in sorted(records):
+            if number != n + len(replay) + 1:
+                log.error("journal: update %d missing; replay stops before it", n + len(replay) + 1)
+                break
+            replay.append(records[number])
+        return state, n, replay
+
+    def _read(self, path: Path, truncate: bool) -> list[Record]:
+        records: list[Record] = []
+        if not path.exists():
+            return records
         good = 0
-        with open(self.journal_path, "rb") as f:
+        with open(path, "rb") as f:
             unpacker = msgpack.Unpacker(f, raw=False, max_buffer_size=1 << 30)
             try:
                 for rec in unpacker:
                     if not (isinstance(rec, dict) and {"n", "kind", "payload"} <= rec.keys()):
                         break
                     good = unpacker.tell()
-                    if rec["n"] > n:
-                        records.append((int(rec["n"]), str(rec["kind"]), bytes(rec["payload"])))
+                    records.append((int(rec["n"]), str(rec["kind"]), bytes(rec["payload"])))
             except (msgpack.OutOfData, ValueError):
                 pass
-        if good < self.journal_path.stat().st_size:
-            log.warning(
-                "journal: incomplete last record cut off",
-                extra={"bytes": self.journal_path.stat().st_size - good},
-            )
-            with open(self.journal_path, "r+b") as f:
+        size = path.stat().st_size
+        if truncate and good < size:
+            log.warning("journal: incomplete last record cut off", extra={"bytes": size - good})
+            with open(path, "r+b") as f:
                 f.truncate(good)
                 os.fsync(f.fileno())
-        return state, n, records
+        return records
 
     def append(self, n: int, kind: str, payload: bytes) -> None:
         if self._journal is None:
@@ -75,20 +111,25 @@ class Store:
         os.fsync(self._journal.fileno())
 
     def snapshot(self, state: object, n: int) -> None:
-        """Write the state of update ``n`` atomically, then start an empty journal."""
+        """Write the state of update ``n``; the latest snapshot and its journal become the
+        previous ones. At every step a crash leaves a restorable directory: either snapshot
+        with the records after it in the two journals."""
         tmp = self.snapshot_path.with_suffix(".tmp")
         with open(tmp, "wb") as f:
-            pickle.dump((state, n), f, protocol=pickle.HIGHEST_PROTOCOL)
+            f.write(state_file.dump(state, n))
             f.flush()
             os.fsync(f.fileno())
+        self.close()
+        if self.snapshot_path.exists():
+            os.replace(self.snapshot_path, self.previous_path)
+        if self.journal_path.exists():
+            os.replace(self.journal_path, self.previous_journal)
         os.replace(tmp, self.snapshot_path)
-        if self._journal is not None:
-            self._journal.close()
-            self._journal = None
-        # records up to n are in the snapshot; a crash before this truncation only leaves
-        # records that load() skips by their number
-        with open(self.journal_path, "wb") as f:
-            os.fsync(f.fileno())
+        fd = os.open(self.directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)  # the renames themselves
+        finally:
+            os.close(fd)
 
     def close(self) -> None:
         if self._journal is not None:

@@ -1,0 +1,96 @@
+"""Snapshots are data, checked before use: a real memory survives the round trip exactly, a
+truncated or bit-flipped snapshot is refused with one log line and the previous snapshot plus
+the journals restore the state, and a snapshot naming any other class is refused."""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import logging
+
+import msgpack
+import numpy as np
+import pytest
+
+from schemas import encode
+from services.scene_memory import state as state_file
+from services.scene_memory.node import SceneMemoryNode
+from services.scene_memory.persistence import Store
+from tests.scene_memory.views import reference, summary
+
+
+@pytest.fixture(scope="module")
+def memories(updates):
+    """The memory after 4 updates and after all 12 (tabletop_clutter, six views)."""
+    return reference(updates[:4]), reference(updates)
+
+
+def test_a_memory_survives_the_round_trip_exactly(memories):
+    _, full = memories
+    data = state_file.dump(full, 12)
+    restored, n = state_file.load(data)
+    assert n == 12
+    assert summary(restored.scene(12, 12.0)) == summary(full.scene(12, 12.0))
+    assert np.array_equal(restored.occupancy.L, full.occupancy.L)
+    assert restored.occupancy.counts() == full.occupancy.counts()
+    assert np.array_equal(restored.cloud, full.cloud)
+    assert restored.fusion.occ == full.fusion.occ and restored.fusion.occ  # (id, id) keys
+    assert len(data) < full.occupancy.L.nbytes, len(data)  # known voxels only, not the grid
+
+
+@pytest.mark.parametrize("damage", ["truncated", "bit_flipped"])
+def test_a_damaged_snapshot_is_refused_and_the_previous_one_restores(
+    tmp_path, updates, memories, damage, caplog
+):
+    _, full = memories
+    store = Store(tmp_path)
+    for n, (kind, message) in enumerate(updates, start=1):
+        store.append(n, kind, encode(message))
+        if n in (4, 8):
+            store.snapshot(reference(updates[:n]), n)
+    store.close()
+    data = (tmp_path / "snapshot.avs").read_bytes()
+    if damage == "truncated":
+        data = data[: len(data) // 2]
+    else:
+        flipped = bytearray(data)
+        flipped[len(data) // 2] ^= 0x10
+        data = bytes(flipped)
+    (tmp_path / "snapshot.avs").write_bytes(data)
+    with caplog.at_level(logging.ERROR, logger="avs.scene_memory"):
+        state, n, records = Store(tmp_path).load()
+    refused = [r for r in caplog.records if "snapshot refused" in r.getMessage()]
+    assert len(refused) == 1 and "checksum" in refused[0].getMessage()
+    assert n == 4 and [r[0] for r in records] == list(range(5, 13))
+    for _, kind, payload in records:
+        SceneMemoryNode._apply(state, kind, payload)
+    assert summary(state.scene(12, 12.0)) == summary(full.scene(12, 12.0))
+    assert state.occupancy.counts() == full.occupancy.counts()
+
+
+def test_a_snapshot_naming_another_class_is_refused():
+    """A checksum-valid file that asks for os.system (or any class off the list) is refused:
+    loading never imports or calls what a file names."""
+    tree = {"__object__": "system", "state": {"command": "touch /tmp/owned"}}
+    body = msgpack.packb(
+        {"version": state_file.VERSION, "n": 1, "tree": tree, "arrays": _empty_npz()},
+        use_bin_type=True,
+    )
+    data = state_file.MAGIC + hashlib.sha256(body).digest() + body
+    with pytest.raises(state_file.StateError, match="not allowed"):
+        state_file.load(data)
+    with pytest.raises(state_file.StateError, match="version"):
+        state_file.load(_with_version(2))
+
+
+def _empty_npz() -> bytes:
+    buffer = io.BytesIO()
+    np.savez(buffer)
+    return buffer.getvalue()
+
+
+def _with_version(version: int) -> bytes:
+    body = msgpack.packb(
+        {"version": version, "n": 1, "tree": None, "arrays": _empty_npz()}, use_bin_type=True
+    )
+    return state_file.MAGIC + hashlib.sha256(body).digest() + body
