@@ -2,6 +2,12 @@
 
 This is ``avs up``: the same commands compose.yaml runs, with every service connecting as a
 client to the in-process router on loopback, multicast off.
+
+Supervision: a service that exits is restarted after a back-off that doubles with every quick
+failure (0.5 s, 1 s, 2 s … 30 s) and starts over once it has run ``HEALTHY_S``; a service
+whose metrics queryable has not answered for ``hung_after`` seconds (alive but stuck: a
+deadlock, SIGSTOP) is killed and restarted the same way. The state of every instance is served
+on ``avs/<robot>/supervisor`` (``avs status`` reads it as the expected set).
 """
 
 from __future__ import annotations
@@ -19,12 +25,20 @@ import zenoh
 
 from avs.router import open_router
 from avs.services import ServiceInfo
+from schemas.codec import encode
 from schemas.keys import Keys
+from schemas.runtime import SupervisedService, SupervisorStatus
 
 log = logging.getLogger("avs.up")
 
-#: restarts of one service before ``avs up`` gives up on it
-MAX_RESTARTS = 3
+#: the first restart's delay and the longest one (it doubles with every quick failure)
+BACKOFF_MIN_S, BACKOFF_MAX_S = 0.5, 30.0
+#: a service that ran this long has recovered: its next failure starts the back-off over
+HEALTHY_S = 30.0
+#: how often every service's metrics queryable is asked whether it still answers
+HEARTBEAT_S = 1.0
+#: default time without an answer after which a service counts as hung
+HUNG_AFTER_S = 10.0
 
 
 def threads_per_instance(instances: int) -> int:
@@ -40,6 +54,10 @@ class Child:
     instance: str
     process: subprocess.Popen | None = None
     restarts: int = 0
+    streak: int = 0  # failures in a row, each within HEALTHY_S of its start
+    next_start: float | None = None  # a restart waiting for its back-off
+    last_heard: float | None = None  # its metrics queryable's last answer (monotonic)
+    state: str = "starting"
     alive: bool = False
     active: bool = False  # its service's token is up
     standing_by: bool = False  # its standby token is up (services/common/standby.py)
@@ -59,10 +77,16 @@ class Supervisor:
         restart: bool = True,
         scale: dict[str, int] | None = None,
         launch: dict[str, list[str]] | None = None,
+        hung_after: float | None = HUNG_AFTER_S,
+        backoff: tuple[float, float] = (BACKOFF_MIN_S, BACKOFF_MAX_S),
     ) -> None:
         """``scale``: instances per service (default one each; only scalable services take
         more). ``launch``: a command prefix per service, e.g. ``ip netns exec HOST`` to run it
-        in a network namespace of its own (tests/test_multihost.py)."""
+        in a network namespace of its own (tests/test_multihost.py). ``hung_after``: seconds
+        without a heartbeat before a running service is restarted (None: never; only with
+        ``restart``). ``backoff``: the first and the longest restart delay, seconds."""
+        self.backoff = backoff
+        self.hung_after = hung_after if restart else None
         self.launch = launch or {}
         self.endpoint = endpoint
         self.keys = Keys(robot)
@@ -80,7 +104,9 @@ class Supervisor:
         ]
         self.router: zenoh.Session | None = None
         self._alive_sub = None
+        self._status_queryable = None
         self._changed = threading.Condition()
+        self._stopping = threading.Event()
 
     # -- start --------------------------------------------------------------------------------
 
@@ -94,6 +120,8 @@ class Supervisor:
             AVS_INSTANCE=child.instance,
         )
         env.setdefault("MUJOCO_GL", "egl")
+        # the working directory must not shadow AVS's packages (a schemas/ folder there)
+        env["PYTHONSAFEPATH"] = "1"
         siblings = sum(1 for c in self.children if c.info.name == child.info.name)
         if siblings > 1 and "NUMBA_NUM_THREADS" not in os.environ:
             env["NUMBA_NUM_THREADS"] = str(threads_per_instance(siblings))
@@ -122,6 +150,7 @@ class Supervisor:
             [*prefix, sys.executable, *child.info.argv()], env=self.child_env(child)
         )
         child.started_at = time.monotonic()
+        child.last_heard, child.next_start, child.state = None, None, "starting"
         log.info("started %s (pid %d)", child.instance, child.process.pid)
 
     def start(self) -> None:
@@ -130,8 +159,12 @@ class Supervisor:
         self._alive_sub = self.router.liveliness().declare_subscriber(
             self.keys.alive(), self._on_liveliness, history=True
         )
+        self._status_queryable = self.router.declare_queryable(
+            self.keys.supervisor(), self._on_status_query
+        )
         for child in self.children:
             self._spawn(child)
+        threading.Thread(target=self._heartbeats, name="heartbeats", daemon=True).start()
 
     def _ready(self) -> bool:
         """Every instance is up (its token, or its standby token), and every service has an
@@ -156,27 +189,99 @@ class Supervisor:
     # -- watch --------------------------------------------------------------------------------
 
     def poll(self) -> None:
-        """Restart a service that exited on its own (up to ``MAX_RESTARTS`` times)."""
+        """Restart what exited (after its back-off) and what hung; keep every state current."""
+        now = time.monotonic()
         for child in self.children:
             p = child.process
-            if p is None or p.poll() is None or child.failed:
+            if child.failed or p is None:
                 continue
-            if not self.restart or child.restarts >= MAX_RESTARTS:
-                log.error("%s exited with status %d; not restarting", child.instance, p.returncode)
-                child.failed = True
+            if child.next_start is not None:
+                if now >= child.next_start:
+                    self._spawn(child)
                 continue
-            child.restarts += 1
-            log.warning(
-                "%s exited with status %d; restart %d of %d",
-                child.instance,
-                p.returncode,
-                child.restarts,
-                MAX_RESTARTS,
-            )
-            self._spawn(child)
+            if p.poll() is None:
+                if self._hung(child, now):
+                    log.error("%s (pid %d) hung: no heartbeat for %.0f s; killing it",
+                              child.instance, p.pid, now - (child.last_heard or now))  # fmt: skip
+                    child.state = "hung"
+                    p.kill()
+                    p.wait()
+                    self._schedule_restart(child, now, "was killed as hung")
+                else:
+                    up = "running" if child.active else "standby" if child.standing_by else None
+                    child.state = up or "starting"
+                continue
+            self._schedule_restart(child, now, f"exited with status {p.returncode}")
+
+    def _hung(self, child: Child, now: float) -> bool:
+        """Alive by its process, silent on its metrics queryable for ``hung_after`` seconds
+        after it had answered once (a service still starting up is not judged)."""
+        return (
+            self.hung_after is not None
+            and child.last_heard is not None
+            and now - child.last_heard > self.hung_after
+        )
+
+    def _schedule_restart(self, child: Child, now: float, why: str) -> None:
+        if not self.restart or self._stopping.is_set():
+            log.error("%s %s; not restarting", child.instance, why)
+            child.failed, child.state = True, "failed"
+            return
+        if now - child.started_at >= HEALTHY_S:
+            child.streak = 0  # it had recovered: this is a new failure, not one more in a row
+        delay = min(self.backoff[1], self.backoff[0] * 2**child.streak)
+        child.streak += 1
+        child.restarts += 1
+        child.next_start, child.state = now + delay, "backoff"
+        child.alive = child.active = child.standing_by = False
+        log.warning("%s %s; restart %d in %.1f s", child.instance, why, child.restarts, delay)
+
+    def _heartbeats(self) -> None:
+        """Ask every metrics queryable once a second; each answer is its instance's heartbeat
+        (answered on Zenoh's threads: a busy service answers, a stuck one does not)."""
+        while not self._stopping.wait(HEARTBEAT_S):
+            router = self.router
+            if router is None:
+                return
+            try:
+                replies = list(router.get(self.keys.metrics(), timeout=HEARTBEAT_S))
+            except zenoh.ZError:
+                return  # the router closed
+            now = time.monotonic()
+            heard = set()
+            for reply in replies:
+                if reply.ok is not None:
+                    parts = str(reply.ok.key_expr).split("/")  # avs/<robot>/metrics/<s>/<i>
+                    if len(parts) == 5:
+                        heard.add((parts[3], parts[4]))
+            for child in self.children:
+                if (child.info.name, child.instance) in heard:
+                    child.last_heard = now
+
+    def status(self) -> SupervisorStatus:
+        now = time.monotonic()
+        return SupervisorStatus(
+            seq=0,
+            stamp=time.time(),
+            services=[
+                SupervisedService(
+                    service=c.info.name,
+                    instance=c.instance,
+                    pid=c.process.pid if c.process and c.process.poll() is None else None,
+                    state=c.state,
+                    alive=c.alive,
+                    restarts=c.restarts,
+                    uptime_s=max(0.0, now - c.started_at) if c.state != "backoff" else 0.0,
+                )
+                for c in self.children
+            ],
+        )
+
+    def _on_status_query(self, query: zenoh.Query) -> None:
+        query.reply(self.keys.supervisor(), encode(self.status()))
 
     def run_until(self, stop: threading.Event) -> None:
-        while not stop.wait(0.5):
+        while not stop.wait(0.2):
             self.poll()
             if self.children and all(c.failed for c in self.children):
                 log.error("every service has failed")
@@ -187,6 +292,7 @@ class Supervisor:
     def stop(self, grace: float = 10.0) -> None:
         """SIGTERM every service, wait up to ``grace`` seconds, SIGKILL what is left, close the
         router."""
+        self._stopping.set()
         running = [c.process for c in self.children if c.process and c.process.poll() is None]
         for p in running:
             p.send_signal(signal.SIGTERM)
@@ -198,8 +304,9 @@ class Supervisor:
                 log.warning("pid %d did not stop in %.0f s; killing it", p.pid, grace)
                 p.kill()
                 p.wait()
-        if self._alive_sub is not None:
-            self._alive_sub.undeclare()
+        for entity in (self._alive_sub, self._status_queryable):
+            if entity is not None:
+                entity.undeclare()
         if self.router is not None:
             self.router.close()
             self.router = None
@@ -213,6 +320,7 @@ class Supervisor:
                 "pid": c.process.pid if c.process else None,
                 "alive": c.alive,
                 "restarts": c.restarts,
+                "state": c.state,
             }
             for c in self.children
         ]

@@ -17,12 +17,16 @@ def add_transport_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def settings_from(args: argparse.Namespace, instance: str | None = None) -> ServiceSettings:
-    """ServiceSettings from the flags and AVS_* variables; without any transport choice the
-    command connects as a client to the local ``avs up`` router."""
+    """ServiceSettings from the flags and AVS_* variables: a client of ``--connect`` (default
+    the local ``avs up`` router) unless a mode or a Zenoh config is given."""
     overrides: dict = {}
     probe = TransportSettings.from_namespace(args)
-    if probe.mode is None and not probe.connect and probe.zenoh_config is None:
-        overrides = {"mode": "client", "connect": [DEFAULT_ENDPOINT]}
+    if probe.mode is None and probe.zenoh_config is None:
+        # a command joins a running system: as a client of the router (given, or avs up's),
+        # so that a wrong address fails at once instead of finding nothing as a lone peer
+        overrides = {"mode": "client"}
+        if not probe.connect:
+            overrides["connect"] = [DEFAULT_ENDPOINT]
         if probe.multicast is None:
             overrides["multicast"] = False
     if instance:
@@ -31,3 +35,19 @@ def settings_from(args: argparse.Namespace, instance: str | None = None) -> Serv
         return ServiceSettings.from_namespace(args, **overrides)
     except SettingsError as e:
         raise SystemExit(f"avs: {e}") from None
+
+
+def connect(settings: ServiceSettings):
+    """Open the session, or exit with one line naming the endpoint and why (nothing listening,
+    credentials refused) — Zenoh says so within a few seconds."""
+    import zenoh
+
+    from services.common.transport import open_session
+
+    try:
+        return open_session(settings)
+    except (zenoh.ZError, ValueError) as e:
+        where = ", ".join(settings.connect) or "the network (peer mode)"
+        user = f" as {settings.user!r}" if settings.user else ""
+        reason = str(e).split(" at /", 1)[0].strip()  # Zenoh appends its source location
+        raise SystemExit(f"avs: cannot connect to {where}{user}: {reason}") from None

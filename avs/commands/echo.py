@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from pydantic import BaseModel
 
-from avs.commands._transport import add_transport_arguments, settings_from
+from avs.commands._transport import add_transport_arguments, connect, settings_from
 from schemas.base import Message
 from services.common.node import Node
 
@@ -91,7 +91,7 @@ def _echo(args: argparse.Namespace) -> int:
     printed = 0
     lock = threading.Lock()
 
-    with Node("echo", settings, announce=False) as node:
+    with Node("echo", settings, connect(settings), announce=False) as node:
         node.install_signal_handlers()
 
         def show(message: Message, sample_key: str) -> None:

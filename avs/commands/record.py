@@ -13,9 +13,8 @@ from pathlib import Path
 
 import zenoh
 
-from avs.commands._transport import add_transport_arguments, settings_from
+from avs.commands._transport import add_transport_arguments, connect, settings_from
 from services.common.recording import RecordingWriter
-from services.common.transport import open_session
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -53,7 +52,7 @@ def _record(args: argparse.Namespace) -> int:
         if args.count and writer.count >= args.count:
             done.set()
 
-    session = open_session(settings)
+    session = connect(settings)
     subscribers = [session.declare_subscriber(k, on_sample) for k in keys]
     print(f"recording {', '.join(keys)} to {args.out}", file=sys.stderr, flush=True)
     t0 = time.monotonic()

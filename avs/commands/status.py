@@ -1,12 +1,15 @@
 """``avs status``: the live services (their liveliness tokens) and what each one's metrics say:
-uptime, messages in and out, drops, gauges."""
+uptime, messages in and out, drops, gauges. The services expected are those the running
+``avs up`` supervises (its ``supervisor`` queryable) and any named with ``--expect``; the exit
+status is 1 when one of them is down (named on stderr), or when nothing is live at all."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 
-from avs.commands._transport import add_transport_arguments, settings_from
+from avs.commands._transport import add_transport_arguments, connect, settings_from
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -15,6 +18,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_transport_arguments(p)
     p.add_argument("--json", action="store_true", help="one JSON object per service")
     p.add_argument("--timeout", type=float, default=3.0, help="seconds to wait for answers")
+    p.add_argument(
+        "--expect",
+        default="",
+        metavar="NAME,…",
+        help="services that must be live (in addition to what avs up supervises)",
+    )
     p.set_defaults(func=_status)
 
 
@@ -30,31 +39,61 @@ def live_services(session, keys, timeout: float) -> list[tuple[str, str]]:
 
 
 def _status(args: argparse.Namespace) -> int:
-    from schemas import Keys, ServiceMetrics, decode
-    from services.common.transport import open_session
+    from schemas import CodecError, Keys, ServiceMetrics, SupervisorStatus, decode
 
     settings = settings_from(args, instance="status")
     keys = Keys(settings.robot)
-    rows = []
-    with open_session(settings) as session:
-        for service, instance in live_services(session, keys, args.timeout):
-            row = {"service": service, "instance": instance}
-            for reply in session.get(keys.metrics(service, instance), timeout=args.timeout):
-                if reply.ok:
+    rows, down = [], []
+    with connect(settings) as session:
+        live = live_services(session, keys, args.timeout)
+        metrics: dict[tuple[str, str], ServiceMetrics] = {}
+        # one query for every instance's metrics: a busy service costs its own wait only
+        for reply in session.get(keys.metrics(), timeout=args.timeout):
+            if reply.ok:
+                try:
                     m = decode(reply.ok.payload.to_bytes(), ServiceMetrics)
-                    row |= {"uptime_s": round(m.uptime_s, 1), "in": sum(m.messages_in.values()),
-                            "out": sum(m.messages_out.values()), "dropped": m.dropped,
-                            "gauges": m.extra}  # fmt: skip
-            rows.append(row)
+                except CodecError:
+                    continue
+                metrics[(m.service, m.instance)] = m
+        supervised = []
+        for reply in session.get(keys.supervisor(), timeout=min(args.timeout, 2.0)):
+            if reply.ok:
+                try:
+                    supervised += decode(reply.ok.payload.to_bytes(), SupervisorStatus).services
+                except CodecError:
+                    continue
+    for service, instance in live:
+        row = {"service": service, "instance": instance}
+        m = metrics.get((service, instance))
+        if m is not None:
+            row |= {"uptime_s": round(m.uptime_s, 1), "in": sum(m.messages_in.values()),
+                    "out": sum(m.messages_out.values()), "dropped": m.dropped,
+                    "gauges": m.extra}  # fmt: skip
+        rows.append(row)
+    live_set = set(live)
+    for s in supervised:
+        if not s.alive and (f"{s.service}_standby", s.instance) not in live_set:
+            down.append({"service": s.service, "instance": s.instance, "state": s.state,
+                         "restarts": s.restarts})  # fmt: skip
+    live_names = {service.removesuffix("_standby") for service, _ in live}
+    for name in (n.strip() for n in args.expect.split(",") if n.strip()):
+        if name not in live_names and not any(d["service"] == name for d in down):
+            down.append({"service": name, "instance": "*", "state": "not live", "restarts": 0})
     if args.json:
         for row in rows:
             print(json.dumps(row))
-        return 0
-    if not rows:
-        print(f"no live services of robot {settings.robot!r}")
+        for row in down:
+            print(json.dumps(row | {"down": True}))
+    elif rows:
+        print(f"{'service':<14}{'instance':<22}{'uptime':>9}{'in':>10}{'out':>10}  dropped")
+        for r in rows:
+            print(f"{r['service']:<14}{r['instance']:<22}{r.get('uptime_s', '?'):>9}"
+                  f"{r.get('in', '?'):>10}{r.get('out', '?'):>10}  "
+                  f"{r.get('dropped', {})}")  # fmt: skip
+    for d in down:
+        print(f"avs status: {d['service']} ({d['instance']}) is down: {d['state']}, "
+              f"{d['restarts']} restarts", file=sys.stderr)  # fmt: skip
+    if not rows and not down:
+        print(f"no live services of robot {settings.robot!r}", file=sys.stderr)
         return 1
-    print(f"{'service':<14}{'instance':<22}{'uptime':>9}{'in':>10}{'out':>10}  dropped")
-    for r in rows:
-        print(f"{r['service']:<14}{r['instance']:<22}{r.get('uptime_s', '?'):>9}"
-              f"{r.get('in', '?'):>10}{r.get('out', '?'):>10}  {r.get('dropped', {})}")  # fmt: skip
-    return 0
+    return 1 if down else 0

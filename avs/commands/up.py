@@ -2,7 +2,8 @@
 
 The services connect to the router as clients with multicast off — the same commands and the
 same wiring as compose.yaml, without docker. Ctrl-C (or SIGTERM) stops them all. A service that
-exits on its own is restarted (at most three times).
+exits, or hangs (its metrics unanswered for --hung-after seconds), is restarted after a back-off
+that doubles with every quick failure (0.5 s … 30 s); ``avs status`` names any that is down.
 """
 
 from __future__ import annotations
@@ -14,7 +15,8 @@ import signal
 import threading
 from pathlib import Path
 
-from avs.launcher import Supervisor
+from avs.commands._args import positive_float
+from avs.launcher import HUNG_AFTER_S, Supervisor
 from avs.router import DEFAULT_ENDPOINT, RouterError
 from avs.services import BY_NAME, SERVICES, ServiceInfo, existing
 
@@ -61,6 +63,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--no-restart", action="store_true", help="do not restart a service that exits"
     )
     parser.add_argument(
+        "--hung-after",
+        type=positive_float,
+        default=HUNG_AFTER_S,
+        metavar="S",
+        help=f"restart a service silent this long (default {HUNG_AFTER_S:.0f} s)",
+    )
+    parser.add_argument(
         "--scale",
         type=parse_scale,
         default={},
@@ -104,7 +113,7 @@ def _up(args: argparse.Namespace) -> int:
     try:
         supervisor = Supervisor(
             services, args.listen, args.robot, env=service_env(args),
-            restart=not args.no_restart, scale=args.scale,
+            restart=not args.no_restart, scale=args.scale, hung_after=args.hung_after,
         )  # fmt: skip
     except ValueError as e:
         raise SystemExit(f"avs: {e}") from None
