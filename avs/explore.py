@@ -237,14 +237,26 @@ class Episode:
     def _query(self, session, key: str, request, schema, timeout: float = 60.0):
         """The first reply on ``key``; asked again while nobody answers (a scene memory
         taking over from one that died), up to ``timeout``."""
+        return self._queries(session, key, request, schema, timeout)[0]
+
+    def _queries(self, session, key: str, request, schema, timeout: float = 60.0) -> list:
+        """Every reply on ``key`` (the pages of a paged one); asked again while nobody
+        answers, up to ``timeout``."""
         payload = encode(request) if request is not None else None
         deadline = time.monotonic() + timeout
         while True:
             left = max(0.1, deadline - time.monotonic())
-            for reply in session.get(key, payload=payload, timeout=left):
-                if reply.ok is not None:
-                    return decode(reply.ok.payload.to_bytes(), schema)
-                raise RuntimeError(f"{key}: {reply.err.payload.to_bytes()[:300]!r}")
+            replies = []
+            # every reply, not the last per key (the pages of a paged one)
+            replies_of = session.get(
+                key, payload=payload, timeout=left, consolidation=zenoh.ConsolidationMode.NONE
+            )
+            for reply in replies_of:
+                if reply.ok is None:
+                    raise RuntimeError(f"{key}: {reply.err.payload.to_bytes()[:300]!r}")
+                replies.append(decode(reply.ok.payload.to_bytes(), schema))
+            if replies:
+                return replies
             if time.monotonic() >= deadline:
                 raise TimeoutError(f"no reply on {key}")
             time.sleep(0.1)
@@ -434,7 +446,9 @@ class Episode:
         from PIL import Image
 
         box = BoxQuery(box_min=np.full(3, -1e3), box_max=np.full(3, 1e3))
-        piece = self._query(session, self.keys.occupancy("slice"), box, OccupancySlice)
+        piece = OccupancySlice.join(
+            self._queries(session, self.keys.occupancy("slice"), box, OccupancySlice)
+        )
         v, origin = piece.voxel_size, piece.origin
         k0, k1 = max(0, int((0.05 - origin[2]) / v)), max(1, int((2.0 - origin[2]) / v))
         occupied = np.any(piece.states[:, :, k0:k1] == 2, axis=2)

@@ -62,3 +62,25 @@ class OccupancySlice(Stamped):
     origin: Vec3
     states: Annotated[np.ndarray, Array("uint8", (None, None, None))]
     map_version: int = Field(ge=0)
+    page: int = Field(0, ge=0, description="this reply's slab along x, from 0")
+    pages: int = Field(1, ge=1, description="replies the slice came in (slabs along x)")
+
+    @classmethod
+    def join(cls, replies: list[OccupancySlice]) -> OccupancySlice:
+        """One slice from the pages of a paged reply (slabs along x), checked complete: the
+        first complete set of one map version when several answered."""
+        groups: dict[tuple[int, int], dict[int, OccupancySlice]] = {}
+        for r in replies:
+            groups.setdefault((r.seq, r.map_version), {})[r.page] = r
+        for pages in groups.values():
+            first = next(iter(pages.values()))
+            if len(pages) == first.pages and set(pages) == set(range(first.pages)):
+                ordered = [pages[i] for i in range(first.pages)]
+                return ordered[0].model_copy(
+                    update={
+                        "states": np.concatenate([p.states for p in ordered], axis=0),
+                        "page": 0,
+                        "pages": 1,
+                    }
+                )
+        raise ValueError(f"no complete occupancy slice among {len(replies)} replies")

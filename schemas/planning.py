@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from schemas.arrays import Array, Dim
 from schemas.base import Message, Stamped
@@ -73,15 +73,27 @@ class Gains(Message):
     worker: str
 
 
+#: the largest step number and number of visited poses a plan request may carry
+MAX_PLAN_STEP = 100_000
+MAX_VISITED = 10_000
+
+
 class PlanRequest(Message):
     """A request on ``nbv/plan``: plan step ``step`` from the robot's current pose. ``initial``
     only aims the head at the view-sphere centre from where the robot stands (the first view);
     ``visited`` are the platform poses of the views taken so far (for the top-down sampling's
     largest arc); with ``execute`` the planner also sends the BaseGoal and the HeadCommand."""
 
-    step: int = Field(0, ge=0)
+    step: int = Field(0, ge=0, le=MAX_PLAN_STEP)
     initial: bool = False
     execute: bool = True
     visited: Annotated[np.ndarray, Array("float64", (None, 3)), Finite()] = Field(
         default_factory=lambda: np.zeros((0, 3))
     )
+
+    @field_validator("visited")
+    @classmethod
+    def _few_visited(cls, v: np.ndarray) -> np.ndarray:
+        if len(v) > MAX_VISITED:
+            raise ValueError(f"{len(v)} visited poses: at most MAX_VISITED={MAX_VISITED}")
+        return v

@@ -58,6 +58,13 @@ class Metrics:
         finally:
             self.record(handler, time.perf_counter() - t0)
 
+    def add(self, name: str, n: float) -> bool:
+        """Add ``n`` to the gauge ``name`` (a running count); True the first time."""
+        with self._lock:
+            first = name not in self._gauges
+            self._gauges[name] = self._gauges.get(name, 0.0) + float(n)
+            return first
+
     def gauge(self, name: str, value: float) -> None:
         with self._lock:
             self._gauges[name] = float(value)

@@ -224,9 +224,9 @@ class Node:
             t0 = time.perf_counter()
             try:
                 result = handler(request)
-                replies = [result] if isinstance(result, Message) else list(result)
+                replies = [result] if isinstance(result, Message) else result
                 reply_key = k if "*" in key else key
-                for message in replies:
+                for message in replies:  # a generator's pages go out as they are made
                     query.reply(reply_key, encode(message))
                     self.metrics.count_out(reply_key)
             except Exception as e:
@@ -251,12 +251,16 @@ class Node:
         request: Message | None = None,
         reply_type: type[M] = Message,  # type: ignore[assignment]
         timeout: float = 5.0,
+        every_reply: bool = False,
     ) -> list[M]:
         """Ask every matching queryable; returns the decoded replies. An error reply raises
-        ``RemoteError``; an undecodable reply is dropped and counted."""
+        ``RemoteError``; an undecodable reply is dropped and counted. ``every_reply``: keep
+        several replies on one key (the pages of a paged reply), which Zenoh otherwise
+        consolidates to the last."""
         payload = encode(request) if request is not None else None
         replies: list[M] = []
-        for reply in self.session.get(selector, payload=payload, timeout=timeout):
+        options = {"consolidation": zenoh.ConsolidationMode.NONE} if every_reply else {}
+        for reply in self.session.get(selector, payload=payload, timeout=timeout, **options):
             if reply.ok is None:
                 text = reply.err.payload.to_bytes() if reply.err else b""
                 try:

@@ -149,13 +149,15 @@ class NbvNode:
         request = BoxQuery(box_min=lo, box_max=hi)
         deadline = time.monotonic() + 30
         while True:
-            pieces = self.node.query(self.node.keys.occupancy("slice"), request, OccupancySlice, 30)
+            pieces = self.node.query(
+                self.node.keys.occupancy("slice"), request, OccupancySlice, 30, every_reply=True
+            )
             if pieces or time.monotonic() > deadline:
                 break
             time.sleep(0.1)
         if not pieces:
             raise RuntimeError("no scene memory answers memory/occupancy/slice")
-        return pieces[0]
+        return OccupancySlice.join(pieces)
 
     def centres(self, piece: OccupancySlice | None) -> np.ndarray:
         """The view spheres' centres (m, 3): the settings' (a scene's points of interest), or

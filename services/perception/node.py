@@ -17,6 +17,7 @@ from collections import deque
 
 from schemas import RgbdFrame
 from schemas.codec import peek
+from services.common.frames import usable_depth_frame
 from services.common.membership import Members
 from services.common.node import Node
 from services.perception.config import PerceptionSettings
@@ -83,17 +84,8 @@ class PerceptionNode:
         self.members.close()
 
     def on_frame(self, frame: RgbdFrame) -> None:
-        if frame.depth is None:
-            self.node.drop("no_depth", self.key, f"frame of {frame.camera} has no depth")
-            return
-        pixels = frame.intrinsics.width * frame.intrinsics.height
-        if pixels > self.settings.max_pixels:
-            self.node.drop(
-                "oversized",
-                self.key,
-                f"{frame.intrinsics.width}×{frame.intrinsics.height} frame is larger "
-                f"than {self.settings.max_pixels} pixels",
-            )
+        frame = usable_depth_frame(self.node, self.key, frame, self.settings.max_pixels)
+        if frame is None:
             return
         result = self.perception.perceive(
             frame.depth, frame.rgb, frame.intrinsics, frame.T_world_camera

@@ -28,6 +28,10 @@ class SceneMemorySettings(ServiceSettings):
         0.03, ge=0, description="a depth frame is integrated once the camera moved this far, m"
     )
     keyframe_turn: float = Field(3.0, ge=0, description="… or turned this much, degrees")
+    max_pixels: int = Field(1280 * 960, gt=0, description="larger depth frames are dropped")
+    slice_page_voxels: int = Field(
+        4_000_000, ge=1, description="voxels per reply of memory/occupancy/slice (it pages)"
+    )
     snapshot_every: int = Field(20, ge=1, description="updates between snapshots")
     max_replay_s: float = Field(
         0.5, gt=0, description="a snapshot once the journal since the last took this long"

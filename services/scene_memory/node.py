@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -25,6 +26,7 @@ from schemas import (
     decode,
     encode,
 )
+from services.common.frames import usable_depth_frame
 from services.common.node import Node
 from services.common.standby import wait_for_turn
 from services.scene_memory.config import SceneMemorySettings
@@ -131,8 +133,9 @@ class SceneMemoryNode:
                 self.node.metrics.gauge(key, value)
 
     def on_frame(self, frame: RgbdFrame) -> None:
-        if frame.depth is None:
-            self.node.drop("no_depth", self.node.keys.rgbd(frame.camera), "frame has no depth")
+        key = self.node.keys.rgbd(frame.camera)
+        frame = usable_depth_frame(self.node, key, frame, self.settings.max_pixels)
+        if frame is None:
             return
         if self.memory.is_keyframe(frame.T_world_camera):
             self._update("frame", frame)
@@ -184,18 +187,27 @@ class SceneMemoryNode:
                 realised_rays=realised["rays"],
             )
 
-    def on_slice(self, request: BoxQuery | None) -> OccupancySlice:
+    def on_slice(self, request: BoxQuery | None) -> Iterator[OccupancySlice]:
+        """The voxel states in the box (default: the roi, else the map), in pages of at most
+        ``slice_page_voxels`` (slabs along x): no reply grows with the box asked for."""
         lo, hi = self._box(request)
         with self.lock:
             occ = self.memory.occupancy
-            origin, states = occ.states(lo, hi)
-            return OccupancySlice(
-                seq=self.n,
-                voxel_size=occ.voxel,
-                origin=origin,
-                states=states,
-                map_version=occ.version,
-            )
+            x0, y0, z0, x1, y1, z1 = occ.index_box(lo, hi)
+            per_x = max(1, (y1 - y0) * (z1 - z0))
+            slab = max(1, self.settings.slice_page_voxels // per_x)
+            starts = list(range(x0, max(x1, x0 + 1), slab))
+            for page, a in enumerate(starts):
+                origin, states = occ.states_in((a, y0, z0, min(a + slab, x1), y1, z1))
+                yield OccupancySlice(
+                    seq=self.n,
+                    voxel_size=occ.voxel,
+                    origin=origin,
+                    states=states,
+                    map_version=occ.version,
+                    page=page,
+                    pages=len(starts),
+                )
 
     def cloud(self) -> PointCloud:
         with self.lock:

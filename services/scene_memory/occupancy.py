@@ -456,7 +456,17 @@ class OccupancyMap:
         """(origin of the box's first voxel, uint8 states: 0 unknown, 1 free, 2 occupied)."""
         box_min = self.lo if box_min is None else box_min
         box_max = self.hi if box_max is None else box_max
-        x0, y0, z0, x1, y1, z1 = self._index_box(box_min, box_max)
+        return self.states_in(self._index_box(box_min, box_max))
+
+    def index_box(self, box_min=None, box_max=None) -> tuple[int, int, int, int, int, int]:
+        """Voxel index range (x0, y0, z0, x1, y1, z1) a world box touches, clipped to the map."""
+        box_min = self.lo if box_min is None else box_min
+        box_max = self.hi if box_max is None else box_max
+        return self._index_box(box_min, box_max)
+
+    def states_in(self, index: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """``states`` of a voxel index range (x0, y0, z0, x1, y1, z1)."""
+        x0, y0, z0, x1, y1, z1 = index
         sub = self.L[x0:x1, y0:y1, z0:z1]
         out = np.full(sub.shape, STATE_FREE, np.uint8)
         out[sub > int(self.l_thresh * SCALE)] = STATE_OCCUPIED

@@ -10,6 +10,7 @@ import time
 
 import numpy as np
 import pytest
+import zenoh
 
 from schemas import (
     BoxQuery,
@@ -27,6 +28,7 @@ from tests.conftest import avs_env, liveliness_tokens, matched_publisher, wait_f
 from tests.scene_memory.views import BOUNDS_MAX, BOUNDS_MIN, VOXEL, Update, reference, summary
 
 KEYS = Keys()
+PAGE = 200_000  # voxels per slice reply: the whole map comes in 10 pages
 
 
 class Client:
@@ -65,6 +67,7 @@ def start(procs, router, data_dir, snapshot_every: int, instance: str = "m0"):
     args = [
         "-m", "services.scene_memory", "--instance", instance, "--data-dir", str(data_dir),
         "--voxel", str(VOXEL), "--snapshot-every", str(snapshot_every),
+        "--slice-page-voxels", str(PAGE),
         f"--bounds-min={','.join(map(str, BOUNDS_MIN))}",
         f"--bounds-max={','.join(map(str, BOUNDS_MAX))}",
     ]  # fmt: skip
@@ -109,6 +112,18 @@ def test_fuses_serves_and_survives_kill_9(client, router, procs, tmp_path, updat
     assert np.bincount(piece.states.ravel(), minlength=3).tolist() == [
         counts.unknown, counts.free, counts.occupied
     ]  # fmt: skip
+    # the whole map, paged: slabs along x that join into the map, none over the page size
+    pages = [decode(r.ok.payload.to_bytes(), OccupancySlice)
+             for r in client.get(KEYS.occupancy("slice"), timeout=10,
+                                 consolidation=zenoh.ConsolidationMode.NONE) if r.ok]  # fmt: skip
+    assert len(pages) == pages[0].pages == 10 and all(p.states.size <= PAGE for p in pages)
+    whole = OccupancySlice.join(pages)
+    assert whole.states.shape == expected.occupancy.shape
+    assert np.bincount(whole.states.ravel(), minlength=3).tolist() == [
+        before_stats.unknown, before_stats.free, before_stats.occupied
+    ]  # fmt: skip
+    with pytest.raises(ValueError, match="no complete"):
+        OccupancySlice.join(pages[:-1])
     cloud = c.get(KEYS.cloud(), PointCloud)
     assert 5000 < len(cloud.points) <= 100_000
 
