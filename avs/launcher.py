@@ -28,6 +28,7 @@ from avs.services import ServiceInfo
 from schemas.codec import encode
 from schemas.keys import Keys
 from schemas.runtime import SupervisedService, SupervisorStatus
+from services.common.realtime import prioritise
 
 log = logging.getLogger("avs.up")
 
@@ -79,13 +80,16 @@ class Supervisor:
         launch: dict[str, list[str]] | None = None,
         hung_after: float | None = HUNG_AFTER_S,
         backoff: tuple[float, float] = (BACKOFF_MIN_S, BACKOFF_MAX_S),
+        realtime: bool = False,
     ) -> None:
         """``scale``: instances per service (default one each; only scalable services take
         more). ``launch``: a command prefix per service, e.g. ``ip netns exec HOST`` to run it
         in a network namespace of its own (tests/test_multihost.py). ``hung_after``: seconds
         without a heartbeat before a running service is restarted (None: never; only with
-        ``restart``). ``backoff``: the first and the longest restart delay, seconds."""
+        ``restart``). ``backoff``: the first and the longest restart delay, seconds.
+        ``realtime``: real-time scheduling for the router's threads (``avs up``)."""
         self.backoff = backoff
+        self.realtime = realtime
         self.hung_after = hung_after if restart else None
         self.launch = launch or {}
         self.endpoint = endpoint
@@ -156,6 +160,8 @@ class Supervisor:
     def start(self) -> None:
         self.router = open_router([self.endpoint])
         log.info("router listening on %s", self.endpoint)
+        if self.realtime:  # the router carries the 1 kHz streams: its threads come first
+            prioritise("the router", main_thread=False)
         self._alive_sub = self.router.liveliness().declare_subscriber(
             self.keys.alive(), self._on_liveliness, history=True
         )

@@ -12,6 +12,7 @@ of one model that use the same name must agree on that size, which the model che
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -26,6 +27,7 @@ WIRE_DTYPES: frozenset[str] = frozenset(
 )
 
 WIRE_KEYS = frozenset({"dtype", "shape", "bytes"})
+_LITTLE = {name: np.dtype(name).newbyteorder("<") for name in WIRE_DTYPES}
 
 #: context flag the codec passes to ``model_validate``: arrays must then be in wire form.
 WIRE_CONTEXT = {"wire": True}
@@ -44,19 +46,19 @@ def array_to_wire(a: np.ndarray) -> dict[str, Any]:
 
 def array_from_wire(value: Any) -> np.ndarray:
     """Build a read-only array over the wire map's bytes; raises ``ValueError`` on any mismatch."""
-    if not isinstance(value, dict) or set(value) != WIRE_KEYS:
+    if not isinstance(value, dict) or value.keys() != WIRE_KEYS:
         raise ValueError("expected an array map with exactly the keys dtype, shape, bytes")
     dtype, shape, data = value["dtype"], value["shape"], value["bytes"]
-    if dtype not in WIRE_DTYPES:
+    dt = _LITTLE.get(dtype) if isinstance(dtype, str) else None
+    if dt is None:
         raise ValueError(f"unsupported array dtype {dtype!r}")
     if not isinstance(shape, list | tuple) or not all(
-        isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in shape
+        type(s) is int and s >= 0 for s in shape  # (not bool: type, not isinstance)
     ):
         raise ValueError(f"array shape must be a list of non-negative ints, got {shape!r}")
     if not isinstance(data, bytes | bytearray | memoryview):
         raise ValueError("array bytes must be a msgpack bin")
-    dt = np.dtype(dtype).newbyteorder("<")
-    expected = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+    expected = math.prod(shape) * dt.itemsize
     if len(data) != expected:
         raise ValueError(
             f"array bytes ({len(data)}) do not match shape {list(shape)} of {dtype} "
@@ -88,7 +90,7 @@ class Array:
         return "[" + ", ".join("*" if s is None else str(s) for s in self.shape) + "]"
 
     def _check(self, a: np.ndarray) -> np.ndarray:
-        if a.dtype.name != self.dtype:
+        if a.dtype != _LITTLE[self.dtype] and a.dtype.name != self.dtype:  # (fast path first)
             raise PydanticCustomError(
                 "array_dtype",
                 "expected {want} array, got {got}",

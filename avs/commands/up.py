@@ -114,6 +114,7 @@ def _up(args: argparse.Namespace) -> int:
         supervisor = Supervisor(
             services, args.listen, args.robot, env=service_env(args),
             restart=not args.no_restart, scale=args.scale, hung_after=args.hung_after,
+            realtime=True,
         )  # fmt: skip
     except ValueError as e:
         raise SystemExit(f"avs: {e}") from None

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from services.common.main import run_node
+from services.common.realtime import prioritise
 from services.gaze.config import GazeSettings
 from services.gaze.node import GazeNode
 
@@ -22,7 +23,13 @@ def main(argv: list[str] | None = None) -> int:
     settings = GazeSettings.from_args(argv)
     if settings.cpus:  # before Zenoh's threads and ours start: they inherit it
         pin(settings.cpus)
-    return run_node(settings, lambda node: GazeNode(node, settings))
+
+    def build(node):
+        if settings.realtime:  # every thread so far (Zenoh's too) and every later one
+            prioritise("the gaze control loop")
+        return GazeNode(node, settings)
+
+    return run_node(settings, build)
 
 
 if __name__ == "__main__":

@@ -43,6 +43,9 @@ class GazeSettings(ServiceSettings):
     egosphere_rate: float = Field(2.0, ge=0, description="gaze/egosphere snapshots per second")
     egosphere_every: int = Field(20, ge=1, description="snapshot: every n-th point")
     acuity: float = Field(0.01, gt=0, description="α: the object localisation the task needs, m")
+    realtime: bool = Field(
+        True, description="real-time scheduling (SCHED_RR, else nice -10) where permitted"
+    )
     cpus: list[int] = Field(
         default_factory=list,
         description="pin the service to these CPUs (a core of its own keeps the control "

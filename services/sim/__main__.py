@@ -5,6 +5,7 @@ from __future__ import annotations
 import sys
 
 from services.common.main import run_node
+from services.common.realtime import prioritise
 from services.sim.config import SimSettings
 from services.sim.robots import ROBOTS
 from services.sim.scene import SceneError
@@ -36,7 +37,13 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
     except SceneError as e:
         print(f"avs sim: {e}", file=sys.stderr)
         return 2
-    return run_node(settings, lambda node: SimNode(node, settings, world))
+
+    def build(node):
+        if settings.realtime and not settings.lockstep:
+            prioritise("the sim's physics and IMU")
+        return SimNode(node, settings, world)
+
+    return run_node(settings, build)
 
 
 if __name__ == "__main__":

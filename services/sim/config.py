@@ -41,3 +41,8 @@ class SimSettings(ServiceSettings):
     noise: bool = Field(True, description="structured-light depth noise")
     shadows: bool = Field(False, description="render shadows (about 4x slower on Mesa)")
     seed: int = Field(0, description="seed of the depth noise")
+    realtime: bool = Field(
+        True,
+        description="real-time scheduling of physics, IMU and Zenoh's threads (SCHED_RR, else "
+        "nice -10) where permitted; the renderer stays ordinary",
+    )

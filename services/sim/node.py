@@ -35,6 +35,7 @@ from schemas import (
     SimStatus,
 )
 from services.common.node import Node
+from services.common.realtime import ordinary
 from services.sim import capture, ground_truth
 from services.sim.config import SimSettings
 from services.sim.render import CameraRenderer
@@ -63,6 +64,7 @@ class RenderWorker:
         return CameraRenderer(self.sim.world.model, s.width, s.height, shadows=s.shadows)
 
     def run(self) -> None:
+        ordinary()  # rendering competes like any other work; physics and IMU come first
         node = self.sim.node
         self.renderer = self._make_renderer()
         period = 1.0 / self.sim.settings.fps if self.periodic else None

@@ -1,0 +1,339 @@
+"""The live stack under load for ``--minutes`` (issue 14): ``avs up`` in real time (every
+service a process, the sim on the wall clock), ARMAR-6 driving a scripted path (sideways back
+and forth at 0.1 m/s) while the gaze holds a fixation target on the table, this
+script as an outside subscriber, and a garbage publisher (its own process) putting 100 msgs/s
+on every input key: random bytes, valid messages of the wrong schema, the right schema with a
+wrong version.
+
+Rates count valid messages only (schema and version read from each payload's head), by a
+meter whose Zenoh threads run with real-time priority like the gaze's (so that what it counts is
+what was delivered, not what a starved process could read). The gaze
+error is the angle between the head camera's optical axis, in the true camera pose each frame
+carries, and the direction to the target. Per minute it prints IMU, ``cmd/head`` and
+observation rates, scene updates, the gaze error's p99; writes ``DIR/soak.json`` and
+``DIR/soak.png``. The last line:
+
+minutes=<n> imu_hz_min=<x> cmd_head_hz_min=<x> observation_hz_min=<x>
+scene_updates_per_min_min=<x> token_flaps=<n> restarts=<n> rss_growth_mb=<x>
+gaze_error_deg_p99=<x>
+
+Targets (issue 14): IMU ≥ 950 Hz and cmd/head ≥ 900 Hz in every minute, observations ≥ 5 Hz,
+scene updates every minute, 0 token flaps, 0 restarts, RSS growth ≤ 100 MB, p99 ≤ 1°.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import multiprocessing as mp
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import msgpack
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import zenoh  # noqa: E402
+
+from schemas import (  # noqa: E402
+    BaseVelocity,
+    GazeTarget,
+    HeadCommand,
+    ImuSample,
+    Keys,
+    SupervisorStatus,
+    decode,
+    encode,
+)
+from schemas.codec import peek  # noqa: E402
+from services.common.realtime import prioritise  # noqa: E402
+
+#: the input keys the garbage goes to, and a valid message of another schema for each
+INPUT_KEYS = ("sensors/rgbd/head_rgbd", "sensors/imu", "state/joints", "state/base", "cmd/base",
+              "cmd/head", "perception/observation", "gaze/target")  # fmt: skip
+GARBAGE_HZ = 100.0
+
+
+def _session(endpoint: str) -> zenoh.Session:
+    c = zenoh.Config()
+    c.insert_json5("mode", '"client"')
+    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    c.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(c)
+
+
+def garbage(endpoint: str, robot: str, stop: mp.Event) -> None:
+    """100 msgs/s on every input key, cycling through three kinds of bad payloads."""
+    rng = np.random.default_rng(7)
+    keys = Keys(robot)
+    imu = ImuSample(
+        seq=1, stamp=0.0, angular_velocity=np.zeros(3), linear_acceleration=np.zeros(3),
+        orientation=np.array([1.0, 0, 0, 0]),
+    )  # fmt: skip
+    head = encode(HeadCommand(seq=1, stamp=0.0, names=["x"], mode="position", values=np.zeros(1)))
+
+    def wrong_version(payload: bytes) -> bytes:
+        m = msgpack.unpackb(payload, raw=False)
+        m["version"] = 99
+        return msgpack.packb(m, use_bin_type=True)
+
+    pool = [
+        lambda _k: rng.bytes(int(rng.integers(1, 300))),
+        lambda k: head if k.endswith("sensors/imu") else encode(imu),  # the wrong schema
+        lambda k: wrong_version(encode(imu) if not k.endswith("sensors/imu") else head),
+    ]
+    with _session(endpoint) as session:
+        pubs = [session.declare_publisher(keys.key(k)) for k in INPUT_KEYS]
+        period, i, t = 1.0 / GARBAGE_HZ, 0, time.monotonic()
+        while not stop.is_set():
+            for p in pubs:
+                p.put(pool[i % len(pool)](str(p.key_expr)))
+            i += 1
+            t += period
+            time.sleep(max(0.0, t - time.monotonic()))
+
+
+class Meter:
+    """Valid messages per key and minute, the gaze error, token flaps."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, target: np.ndarray) -> None:
+        self.lock = threading.Lock()
+        self.counts: dict[str, int] = defaultdict(int)
+        self.errors: list[float] = []
+        self.flaps: list[str] = []
+        self.target = target
+        expect = {keys.imu(): "ImuSample", keys.cmd_head(): "HeadCommand",
+                  keys.observation(): "SceneObservation", keys.scene(): "SceneModel"}  # fmt: skip
+        self.subs = [session.declare_subscriber(k, self._counter(k, s)) for k, s in expect.items()]
+        self.subs.append(session.declare_subscriber(keys.rgbd("head_rgbd"), self._frame))
+        self.subs.append(session.liveliness().declare_subscriber(keys.alive(), self._token))
+        self.watching_tokens = True
+
+    def _counter(self, key: str, schema: str):
+        from schemas.base import REGISTRY
+
+        version = REGISTRY[schema].VERSION
+
+        def on(sample: zenoh.Sample) -> None:
+            head = peek(sample.payload.to_bytes(), "schema", "version")
+            if head.get("schema") == schema and head.get("version") == version:
+                with self.lock:
+                    self.counts[key] += 1
+
+        return on
+
+    def _frame(self, sample: zenoh.Sample) -> None:
+        from schemas import RgbdFrame
+
+        try:
+            frame = decode(sample.payload.to_bytes(), RgbdFrame)
+        except Exception:
+            return
+        T = frame.T_world_camera
+        to = self.target - T[:3, 3]
+        cos = float(np.dot(T[:3, 2], to) / np.linalg.norm(to))
+        with self.lock:
+            self.errors.append(math.degrees(math.acos(min(1.0, max(-1.0, cos)))))
+
+    def _token(self, sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.DELETE and self.watching_tokens:
+            with self.lock:
+                self.flaps.append(str(sample.key_expr))
+
+    def take(self) -> tuple[dict[str, int], list[float]]:
+        with self.lock:
+            counts, errors = dict(self.counts), self.errors
+            self.counts, self.errors = defaultdict(int), []
+        return counts, errors
+
+
+def rss_mb(pid: int) -> float | None:
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    except OSError:
+        return None
+    return None
+
+
+def supervised(session: zenoh.Session, keys: Keys) -> SupervisorStatus | None:
+    for _ in range(3):  # asked again: a loaded machine may miss one answer
+        for r in session.get(keys.supervisor(), timeout=3):
+            if r.ok:
+                return decode(r.ok.payload.to_bytes(), SupervisorStatus)
+    return None
+
+
+def drive(session: zenoh.Session, keys: Keys, stop: threading.Event) -> None:
+    """The scripted path: sideways at 0.1 m/s, 6 s each way (0.6 m), commanded at 20 Hz: the
+    fixation target stays within the head's reach while the platform moves under it."""
+    pub = session.declare_publisher(keys.cmd_base())
+    t0, seq = time.monotonic(), 0
+    while not stop.wait(0.05):
+        t = time.monotonic() - t0
+        sign = 1.0 if int(t // 6) % 2 == 0 else -1.0
+        seq += 1
+        pub.put(encode(BaseVelocity(seq=seq, stamp=time.time(), v_x=0.0, v_y=0.1 * sign,
+                                    timeout=0.5)))  # fmt: skip
+    pub.put(encode(BaseVelocity(seq=seq + 1, stamp=time.time(), v_x=0.0)))
+
+
+def hold_gaze(session: zenoh.Session, keys: Keys, target: np.ndarray, stop: threading.Event):
+    pub = session.declare_publisher(keys.gaze_target())
+    seq = 0
+    while True:
+        seq += 1
+        pub.put(encode(GazeTarget(seq=seq, stamp=time.time(), point=target, source="manual",
+                                  priority=10.0, hold_s=5.0)))  # fmt: skip
+        if stop.wait(1.0):
+            return
+
+
+def plot(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    m = [r["minute"] for r in rows]
+    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6))
+    axes[0].plot(m, [r["imu_hz"] for r in rows], "o-", label="IMU")
+    axes[0].plot(m, [r["cmd_head_hz"] for r in rows], "s-", label="cmd/head")
+    axes[0].axhline(950, ls=":", c="C0")
+    axes[0].axhline(900, ls=":", c="C1")
+    axes[0].set(xlabel="minute", ylabel="Hz", title="1 kHz streams")
+    axes[0].legend()
+    axes[1].plot(m, [r["observation_hz"] for r in rows], "o-", label="observations (Hz)")
+    axes[1].plot(m, [r["scene_updates"] / 60 for r in rows], "s-", label="scene updates (/s)")
+    axes[1].axhline(5, ls=":", c="C0")
+    axes[1].set(xlabel="minute", title="perception and memory")
+    axes[1].legend()
+    axes[2].plot(m, [r["gaze_error_deg_p99"] for r in rows], "o-")
+    axes[2].axhline(1.0, ls=":")
+    axes[2].set(xlabel="minute", ylabel="degrees", title="gaze error p99")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--minutes", type=int, default=10)
+    p.add_argument("--out", type=Path, default=Path("soak"))
+    p.add_argument("--port", type=int, default=7461)
+    p.add_argument("--no-garbage", action="store_true", help="without the garbage publisher")
+    args = p.parse_args()
+    if args.minutes < 1:
+        p.error("--minutes must be ≥ 1")
+    args.out.mkdir(parents=True, exist_ok=True)
+    from avs.explore import scene_facts
+
+    facts = scene_facts("tabletop_occluded", "armar6")
+    target = np.asarray(facts.centre, float)
+    endpoint, keys = f"tcp/127.0.0.1:{args.port}", Keys("armar6")
+    env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    up = subprocess.Popen(
+        [sys.executable, "-P", "-m", "avs.cli", "--log-level", "WARNING", "up", "--listen",
+         endpoint, "--data-dir", str(args.out / "data")],
+        stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env,
+    )  # fmt: skip
+    ready = json.loads(up.stdout.readline())
+    print(f"avs up: {[(c['instance'], c['alive']) for c in ready['services']]}", flush=True)
+    started = [c["pid"] for c in ready["services"] if c["pid"]]
+    stop_garbage = mp.get_context("spawn").Event()
+    junk = None
+    if not args.no_garbage:
+        junk = mp.get_context("spawn").Process(
+            target=garbage, args=(endpoint, "armar6", stop_garbage), daemon=True
+        )
+        junk.start()
+    stop = threading.Event()
+    rows: list[dict] = []
+    rss_start: dict[int, float] = {}
+    all_errors: list[float] = []
+    with _session(endpoint) as session:
+        # the meter's Zenoh threads keep up with what it measures (it must not undercount)
+        prioritise("the soak meter", main_thread=False)
+        meter = Meter(session, keys, target)
+        jobs = ((drive, (session, keys, stop)), (hold_gaze, (session, keys, target, stop)))
+        threads = [threading.Thread(target=f, args=a, daemon=True) for f, a in jobs]
+        for t in threads:
+            t.start()
+        time.sleep(5.0)  # the gaze turns to the target and the drive gets going
+        meter.take()
+        t_minute = time.monotonic()
+        for minute in range(1, args.minutes + 1):
+            time.sleep(max(0.0, t_minute + 60 - time.monotonic()))
+            took = time.monotonic() - t_minute
+            t_minute = time.monotonic()
+            counts, errors = meter.take()
+            all_errors += errors
+            status = supervised(session, keys)
+            # the services' processes: as the supervisor says now, else as avs up started them
+            pids = [s.pid for s in status.services if s.pid] if status else started
+            rss = {pid: rss_mb(pid) or 0.0 for pid in pids}
+            if minute == 1:
+                rss_start = dict(rss)
+            row = {
+                "minute": minute,
+                "imu_hz": round(counts.get(keys.imu(), 0) / took, 1),
+                "cmd_head_hz": round(counts.get(keys.cmd_head(), 0) / took, 1),
+                "observation_hz": round(counts.get(keys.observation(), 0) / took, 2),
+                "scene_updates": counts.get(keys.scene(), 0),
+                "gaze_error_deg_p50": round(float(np.percentile(errors, 50)), 3)
+                if errors else float("nan"),
+                "gaze_error_deg_p99": round(float(np.percentile(errors, 99)), 3)
+                if errors else float("nan"),
+                "rss_mb": {str(pid): round(v, 1) for pid, v in rss.items()},
+                "restarts": sum(s.restarts for s in status.services) if status else -1,
+                "token_flaps": len(meter.flaps),
+            }  # fmt: skip
+            rows.append(row)
+            print(f"minute {minute}: IMU {row['imu_hz']} Hz, cmd/head {row['cmd_head_hz']} Hz, "
+                  f"observations {row['observation_hz']} Hz, scene updates "
+                  f"{row['scene_updates']}, gaze error p50 {row['gaze_error_deg_p50']}° "
+                  f"p99 {row['gaze_error_deg_p99']}°, "
+                  f"restarts {row['restarts']}, token flaps {row['token_flaps']}",
+                  flush=True)  # fmt: skip
+        meter.watching_tokens = False
+        stop.set()
+        final = supervised(session, keys)
+        for s in meter.subs:
+            s.undeclare()
+    stop_garbage.set()
+    if junk is not None:
+        junk.join(10)
+    up.send_signal(signal.SIGINT)
+    up.wait(60)
+    growth = [rows[-1]["rss_mb"].get(str(pid), 0.0) - v for pid, v in rss_start.items()]
+    summary = {
+        "minutes": args.minutes,
+        "imu_hz_min": min(r["imu_hz"] for r in rows),
+        "cmd_head_hz_min": min(r["cmd_head_hz"] for r in rows),
+        "observation_hz_min": min(r["observation_hz"] for r in rows),
+        "scene_updates_per_min_min": min(r["scene_updates"] for r in rows),
+        "token_flaps": len(meter.flaps),
+        "restarts": sum(s.restarts for s in final.services) if final else -1,
+        "rss_growth_mb": round(max(growth, default=0.0), 1),
+        "gaze_error_deg_p99": round(float(np.percentile(all_errors, 99)), 3)
+        if all_errors else float("nan"),
+    }  # fmt: skip
+    (args.out / "soak.json").write_text(json.dumps({"minutes": rows, "summary": summary,
+                                                    "flaps": meter.flaps}, indent=1))  # fmt: skip
+    plot(rows, args.out / "soak.png")
+    print(f"wrote {args.out / 'soak.json'} and {args.out / 'soak.png'}")
+    print(" ".join(f"{k}={v}" for k, v in summary.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
