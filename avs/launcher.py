@@ -6,8 +6,9 @@ client to the in-process router on loopback, multicast off.
 Supervision: a service that exits is restarted after a back-off that doubles with every quick
 failure (0.5 s, 1 s, 2 s … 30 s) and starts over once it has run ``HEALTHY_S``; a service
 whose metrics queryable has not answered for ``hung_after`` seconds (alive but stuck: a
-deadlock, SIGSTOP) is killed and restarted the same way. The state of every instance is served
-on ``avs/<robot>/supervisor`` (``avs status`` reads it as the expected set).
+deadlock, SIGSTOP: stopped, or spending no CPU time) is killed and restarted the same way; one
+that answers late because busier processes starve it is left alone. The state of every
+instance is served on ``avs/<robot>/supervisor`` (``avs status`` reads it as the expected set).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import zenoh
 
@@ -49,6 +51,16 @@ def threads_per_instance(instances: int) -> int:
     return max(1, (os.cpu_count() or 1) // instances)
 
 
+def process_state(pid: int) -> tuple[str | None, float]:
+    """(the process's state letter from /proc, e.g. R, S, T; its CPU seconds so far), or
+    (None, 0) when it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (OSError, IndexError):
+        return None, 0.0
+    return fields[0], (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 @dataclass
 class Child:
     info: ServiceInfo
@@ -58,6 +70,7 @@ class Child:
     streak: int = 0  # failures in a row, each within HEALTHY_S of its start
     next_start: float | None = None  # a restart waiting for its back-off
     last_heard: float | None = None  # its metrics queryable's last answer (monotonic)
+    cpu_mark: tuple[float, float] | None = None  # (its CPU seconds, when) once it went silent
     state: str = "starting"
     alive: bool = False
     active: bool = False  # its service's token is up
@@ -221,12 +234,24 @@ class Supervisor:
 
     def _hung(self, child: Child, now: float) -> bool:
         """Alive by its process, silent on its metrics queryable for ``hung_after`` seconds
-        after it had answered once (a service still starting up is not judged)."""
-        return (
-            self.hung_after is not None
-            and child.last_heard is not None
-            and now - child.last_heard > self.hung_after
-        )
+        after it had answered once (a service still starting up is not judged), and not
+        working either: stopped (SIGSTOP), or no CPU time spent in that window (a deadlock).
+        A process starved of CPU by busier ones answers late but is not hung."""
+        if (
+            self.hung_after is None
+            or child.last_heard is None
+            or child.process is None
+            or now - child.last_heard <= self.hung_after
+        ):
+            child.cpu_mark = None
+            return False
+        state, cpu = process_state(child.process.pid)
+        if state in ("T", "t", None):  # stopped, traced, or gone
+            return True
+        if child.cpu_mark is None or child.cpu_mark[1] < child.last_heard:
+            child.cpu_mark = (cpu, now)  # the CPU time when the silence passed hung_after
+            return False
+        return cpu == child.cpu_mark[0] and now - child.cpu_mark[1] >= HEARTBEAT_S * 3
 
     def _schedule_restart(self, child: Child, now: float, why: str) -> None:
         if not self.restart or self._stopping.is_set():

@@ -53,7 +53,8 @@ def array_from_wire(value: Any) -> np.ndarray:
     if dt is None:
         raise ValueError(f"unsupported array dtype {dtype!r}")
     if not isinstance(shape, list | tuple) or not all(
-        type(s) is int and s >= 0 for s in shape  # (not bool: type, not isinstance)
+        type(s) is int and s >= 0
+        for s in shape  # (not bool: type, not isinstance)
     ):
         raise ValueError(f"array shape must be a list of non-negative ints, got {shape!r}")
     if not isinstance(data, bytes | bytearray | memoryview):

@@ -30,7 +30,7 @@ def _threads() -> list[int]:
         return [0]
 
 
-def prioritise(what: str, main_thread: bool = True) -> str:
+def prioritise(what: str, main_thread: bool = True, nice_only: bool = False) -> str:
     """Real-time scheduling for every thread of this process (and those it starts later);
     returns what was granted: "SCHED_RR", "nice -10" or "none". ``main_thread=False`` leaves
     the main thread (and what it starts or forks from now on) ordinary: ``avs up`` gives its
@@ -38,6 +38,8 @@ def prioritise(what: str, main_thread: bool = True) -> str:
     granted = "none"
     tids = [t for t in _threads() if main_thread or t != os.getpid()]
     try:
+        if nice_only:
+            raise PermissionError("nice only")
         for tid in tids:
             os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(RR_PRIORITY))
         granted = "SCHED_RR"
