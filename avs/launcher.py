@@ -269,25 +269,28 @@ class Supervisor:
 
     def _heartbeats(self) -> None:
         """Ask every metrics queryable once a second; each answer is its instance's heartbeat
-        (answered on Zenoh's threads: a busy service answers, a stuck one does not)."""
+        (answered on Zenoh's threads: a busy service answers, a stuck one does not). The
+        answers come to a callback: a thread blocked iterating a query's replies holds the GIL
+        most of that time, and the supervisor's own queryable would wait for it."""
         while not self._stopping.wait(HEARTBEAT_S):
             router = self.router
             if router is None:
                 return
             try:
-                replies = list(router.get(self.keys.metrics(), timeout=HEARTBEAT_S))
+                router.get(self.keys.metrics(), self._on_heartbeat, timeout=HEARTBEAT_S)
             except zenoh.ZError:
                 return  # the router closed
-            now = time.monotonic()
-            heard = set()
-            for reply in replies:
-                if reply.ok is not None:
-                    parts = str(reply.ok.key_expr).split("/")  # avs/<robot>/metrics/<s>/<i>
-                    if len(parts) == 5:
-                        heard.add((parts[3], parts[4]))
-            for child in self.children:
-                if (child.info.name, child.instance) in heard:
-                    child.last_heard = now
+
+    def _on_heartbeat(self, reply: zenoh.Reply) -> None:
+        if reply.ok is None:
+            return
+        parts = str(reply.ok.key_expr).split("/")  # avs/<robot>/metrics/<service>/<instance>
+        if len(parts) != 5:
+            return
+        now = time.monotonic()
+        for child in self.children:
+            if child.info.name == parts[3] and child.instance == parts[4]:
+                child.last_heard = now
 
     def status(self) -> SupervisorStatus:
         now = time.monotonic()

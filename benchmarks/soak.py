@@ -322,7 +322,9 @@ def main() -> int:
         "observation_hz_min": min(r["observation_hz"] for r in rows),
         "scene_updates_per_min_min": min(r["scene_updates"] for r in rows),
         "token_flaps": len(meter.flaps),
-        "restarts": sum(s.restarts for s in final.services) if final else -1,
+        # (the last the supervisor told: a loaded router may leave a query unanswered)
+        "restarts": sum(s.restarts for s in final.services)
+        if final else max((r["restarts"] for r in rows), default=-1),
         "rss_growth_mb": round(max(growth, default=0.0), 1),
         "gaze_error_deg_p99": round(float(np.percentile(all_errors, 99)), 3)
         if all_errors else float("nan"),

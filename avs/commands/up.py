@@ -4,6 +4,9 @@ The services connect to the router as clients with multicast off — the same co
 same wiring as compose.yaml, without docker. Ctrl-C (or SIGTERM) stops them all. A service that
 exits, or hangs (its metrics unanswered for --hung-after seconds), is restarted after a back-off
 that doubles with every quick failure (0.5 s … 30 s); ``avs status`` names any that is down.
+The scene memory runs with a hot standby (``--no-standby``: without), which takes over within
+2 s when the active one dies; the router's threads, the sim's physics and the gaze run with
+real-time scheduling where the OS permits it.
 """
 
 from __future__ import annotations
@@ -63,6 +66,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--no-restart", action="store_true", help="do not restart a service that exits"
     )
     parser.add_argument(
+        "--no-standby",
+        action="store_true",
+        help="run one scene memory, without the hot standby that serves within 2 s of a crash",
+    )
+    parser.add_argument(
         "--hung-after",
         type=positive_float,
         default=HUNG_AFTER_S,
@@ -110,10 +118,13 @@ def chosen_services(names: str) -> list[ServiceInfo]:
 
 def _up(args: argparse.Namespace) -> int:
     services = chosen_services(args.services)
+    scale = dict(args.scale)
+    if not args.no_standby and any(s.name == "scene_memory" for s in services):
+        scale.setdefault("scene_memory", 2)  # one active, one standing by to take over
     try:
         supervisor = Supervisor(
             services, args.listen, args.robot, env=service_env(args),
-            restart=not args.no_restart, scale=args.scale, hung_after=args.hung_after,
+            restart=not args.no_restart, scale=scale, hung_after=args.hung_after,
             realtime=True,
         )  # fmt: skip
     except ValueError as e:
