@@ -44,6 +44,7 @@ sys.path.insert(0, str(ROOT))
 
 import zenoh  # noqa: E402
 
+from benchmarks._loopback import client_config  # noqa: E402
 from schemas import (  # noqa: E402
     BaseVelocity,
     GazeTarget,
@@ -64,11 +65,7 @@ GARBAGE_HZ = 100.0
 
 
 def _session(endpoint: str) -> zenoh.Session:
-    c = zenoh.Config()
-    c.insert_json5("mode", '"client"')
-    c.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    c.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(c)
+    return zenoh.open(client_config(endpoint))
 
 
 def garbage(endpoint: str, robot: str, stop: mp.Event) -> None:

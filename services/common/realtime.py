@@ -2,12 +2,12 @@
 sim's physics and IMU): ``SCHED_RR`` where the OS permits it (root, or CAP_SYS_NICE in a
 container), else a nice of −10, else nothing — and it says which in one log line.
 
-Called at the top of a process's ``main`` (before Zenoh's threads start: Linux threads inherit
-their creator's policy), every thread of the process gets it; a thread that must not have it
-(the sim's renderer) calls ``ordinary()`` for itself. Round-robin rather than FIFO: threads of
-one priority share their CPU in slices instead of one keeping it until it blocks. (Python's GIL
-switch interval stays at its 5 ms: at 0.5 ms the handoffs cost more than they won, on the
-soak benchmark 650-820 Hz of IMU against 910 Hz.)
+Called once the process's node is up, it sets every thread there is (Zenoh's included) and,
+since Linux threads inherit their creator's policy, every thread started later; a thread that
+must not have it (the sim's renderer) calls ``ordinary()`` for itself. Round-robin rather
+than FIFO: threads of one priority share their CPU in slices instead of one keeping it until
+it blocks. (Python's GIL switch interval stays at its 5 ms: at 0.5 ms the handoffs cost more
+than they won, on the soak benchmark 650-820 Hz of IMU against 910 Hz.)
 """
 
 from __future__ import annotations
@@ -23,23 +23,22 @@ RR_PRIORITY = 10
 NICE = -10
 
 
-def _threads() -> list[int]:
+def threads() -> list[int]:
+    """The ids of this process's threads (Linux: /proc/self/task)."""
     try:
         return [int(t.name) for t in Path("/proc/self/task").iterdir()]
     except OSError:
         return [0]
 
 
-def prioritise(what: str, main_thread: bool = True, nice_only: bool = False) -> str:
+def prioritise(what: str, main_thread: bool = True) -> str:
     """Real-time scheduling for every thread of this process (and those it starts later);
     returns what was granted: "SCHED_RR", "nice -10" or "none". ``main_thread=False`` leaves
     the main thread (and what it starts or forks from now on) ordinary: ``avs up`` gives its
     router's threads priority, not the services it spawns."""
     granted = "none"
-    tids = [t for t in _threads() if main_thread or t != os.getpid()]
+    tids = [t for t in threads() if main_thread or t != os.getpid()]
     try:
-        if nice_only:
-            raise PermissionError("nice only")
         for tid in tids:
             os.sched_setscheduler(tid, os.SCHED_RR, os.sched_param(RR_PRIORITY))
         granted = "SCHED_RR"

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import os
 import sys
-from pathlib import Path
 
 from services.common.main import run_node
-from services.common.realtime import prioritise
+from services.common.realtime import prioritise, threads
 from services.gaze.config import GazeSettings
 from services.gaze.node import GazeNode
 
@@ -15,8 +14,8 @@ from services.gaze.node import GazeNode
 def pin(cpus: list[int]) -> None:
     """This process on ``cpus``: every thread so far (imports start some, e.g. BLAS's) and,
     by inheritance, every thread started from now on."""
-    for task in Path("/proc/self/task").iterdir():
-        os.sched_setaffinity(int(task.name), cpus)
+    for tid in threads():
+        os.sched_setaffinity(tid, cpus)
 
 
 def main(argv: list[str] | None = None) -> int:

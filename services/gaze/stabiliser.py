@@ -147,28 +147,25 @@ def saturated_solve(J, xd, q, lower, upper, vmax, w_inv, limit_time, centring, d
     lo = np.minimum(np.maximum((lower - q) / limit_time, -vmax), vmax)
     hi = np.minimum(np.maximum((upper - q) / limit_time, -vmax), vmax)
     centre = -centring * (q - (lower + upper) / 2)
+    Jt = np.ascontiguousarray(J.T)  # a joint's column as a contiguous row
     free = np.ones(n, np.bool_)
     qd = np.zeros(n)
     for _ in range(n):
-        rest = xd.copy()
-        for j in range(n):
-            if not free[j]:
-                rest -= J[:, j] * qd[j]
-        # A = J_f W⁻¹ J_fᵀ + λ² I (m × m, symmetric positive definite); J# = W⁻¹ J_fᵀ A⁻¹
+        # A = J_f W⁻¹ J_fᵀ + λ² I (m × m, symmetric positive definite); J# = W⁻¹ J_fᵀ A⁻¹, and
+        # q̇_f = J#·rest + (I − J#·J_f)·centre_f = centre_f + J#·r with rest = ẋ − J_s·q̇_s (the
+        # saturated joints' share) and r = rest − J_f·centre_f
         A = damping**2 * np.eye(m)
+        r = xd.copy()
         for j in range(n):
             if free[j]:
-                A += w_inv[j] * np.outer(J[:, j], J[:, j])
-        A_inv = np.linalg.inv(A)
-        # q̇_f = J#·rest + (I − J#·J_f)·centre_f = centre_f + J#·(rest − J_f·centre_f)
-        r = rest.copy()
+                A += w_inv[j] * np.outer(Jt[j], Jt[j])
+                r -= Jt[j] * centre[j]
+            else:
+                r -= Jt[j] * qd[j]
+        y = np.linalg.solve(A, r)
         for j in range(n):
             if free[j]:
-                r -= J[:, j] * centre[j]
-        y = A_inv @ r
-        for j in range(n):
-            if free[j]:
-                qd[j] = centre[j] + w_inv[j] * np.dot(np.ascontiguousarray(J[:, j]), y)
+                qd[j] = centre[j] + w_inv[j] * np.dot(Jt[j], y)
         worst, over_max = -1, 1e-12
         for j in range(n):
             if free[j]:

@@ -170,8 +170,7 @@ class SceneMemoryNode:
         with self.lock:
             occ = self.memory.occupancy
             unknown, free, occupied = occ.counts(lo, hi)
-            # (a snapshot from before realised gains were kept has none)
-            realised = getattr(self.memory, "realised_gain", {"volume": 0.0, "rays": 0.0})
+            realised = self.memory.realised_gain
             return OccupancyStats(
                 seq=self.n,
                 voxel_size=occ.voxel,
@@ -182,7 +181,7 @@ class SceneMemoryNode:
                 occupied=occupied,
                 map_version=occ.version,
                 frames_integrated=occ.frames,
-                frames_skipped=getattr(self.memory, "frames_skipped", 0),
+                frames_skipped=self.memory.frames_skipped,
                 realised_volume=int(realised["volume"]),
                 realised_rays=realised["rays"],
             )
