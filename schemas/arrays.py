@@ -35,13 +35,25 @@ WIRE_CONTEXT = {"wire": True}
 ShapeEntry = int | str | None
 
 
+def wire_dtype_name(dtype: np.dtype) -> str:
+    """The wire name of a (little-endian or native) dtype: ``dtype.name``, looked up instead of
+    computed (numpy builds the name in Python on every access)."""
+    name = _NAMES.get(dtype)
+    if name is None:
+        name = _NAMES[dtype] = dtype.name
+    return name
+
+
+_NAMES: dict[np.dtype, str] = {dt: name for name, dt in _LITTLE.items()}
+
+
 def array_to_wire(a: np.ndarray) -> dict[str, Any]:
     """The wire map of an array; the bytes are a view of ``a`` when it is already contiguous."""
     if a.dtype.byteorder == ">":
         a = a.astype(a.dtype.newbyteorder("<"))
     a = np.ascontiguousarray(a)
     raw = memoryview(a.reshape(-1).view(np.uint8))
-    return {"dtype": a.dtype.name, "shape": list(a.shape), "bytes": raw}
+    return {"dtype": wire_dtype_name(a.dtype), "shape": list(a.shape), "bytes": raw}
 
 
 def array_from_wire(value: Any) -> np.ndarray:
@@ -122,7 +134,9 @@ class Array:
     def validate(self, value: Any, info: ValidationInfo) -> np.ndarray:
         wire = bool(info.context and info.context.get("wire"))
         if isinstance(value, np.ndarray) and not wire:
-            if value.dtype.name != self.dtype and np.can_cast(value.dtype, self.dtype, "same_kind"):
+            if value.dtype != _LITTLE[self.dtype] and np.can_cast(
+                value.dtype, self.dtype, "same_kind"
+            ):
                 value = value.astype(self.dtype)
             return self._check(value)
         if isinstance(value, dict):

@@ -15,7 +15,7 @@ import msgpack
 import numpy as np
 from pydantic import BaseModel, ValidationError
 
-from schemas.arrays import WIRE_CONTEXT, array_to_wire
+from schemas.arrays import _LITTLE, WIRE_CONTEXT, array_to_wire, wire_dtype_name
 from schemas.base import REGISTRY, Message
 
 M = TypeVar("M", bound=Message)
@@ -70,21 +70,61 @@ def _packb(value: Any) -> bytes:
 
 _ARRAY_KEYS = [_packb("dtype"), None, _packb("shape"), None, _packb("bytes")]
 
+#: msgpack of everything in an array's map before its bytes, by (dtype, shape): the same few
+#: shapes go out at 1 kHz (bounded: clouds of every size are packed, not cached)
+_ARRAY_HEADS: dict[tuple[np.dtype, tuple[int, ...]], bytes] = {}
+_MAX_ARRAY_HEADS = 4096
+
+
+def _array_head(a: np.ndarray) -> bytes:
+    key = (a.dtype, a.shape)
+    head = _ARRAY_HEADS.get(key)
+    if head is None:
+        head = b"".join((b"\x83", _ARRAY_KEYS[0], _packb(wire_dtype_name(a.dtype)),
+                         _ARRAY_KEYS[2], _packb(list(a.shape)), _ARRAY_KEYS[4]))  # fmt: skip
+        if len(_ARRAY_HEADS) < _MAX_ARRAY_HEADS:
+            _ARRAY_HEADS[key] = head
+    return head
+
+
+def _pack_array(a: np.ndarray, out: list) -> None:
+    if a.dtype.byteorder == ">" or not a.flags.c_contiguous:
+        wire = array_to_wire(a)
+        a = np.frombuffer(wire["bytes"], _LITTLE[wire["dtype"]]).reshape(wire["shape"])
+    raw = memoryview(a.reshape(-1).view(np.uint8))
+    out += (_array_head(a), _bin_header(len(raw)), raw)
+
+
+#: the msgpack of each model's field names, in order (a model's fields never change)
+_FIELD_KEYS: dict[type, list[tuple[str, bytes]]] = {}
+
+
+def _field_keys(cls: type[BaseModel]) -> list[tuple[str, bytes]]:
+    keys = _FIELD_KEYS.get(cls)
+    if keys is None:
+        keys = _FIELD_KEYS[cls] = [(k, _packb(k)) for k in cls.model_fields]
+    return keys
+
+
+_SCALARS = (int, float, str, bool, type(None))
+
 
 def _pack(value: Any, out: list) -> None:
     """Append the msgpack encoding of ``value`` to ``out`` as chunks; array data is appended as
     a memoryview, so the final ``b"".join`` copies each array exactly once."""
-    if isinstance(value, BaseModel):
-        fields = type(value).model_fields
-        out.append(_header(0x80, 16, 0xDE, 0xDF, len(fields)))
-        for k in fields:
-            out.append(_packb(k))
+    t = type(value)
+    if t in _SCALARS:
+        out.append(_packb(value))
+    elif t is np.ndarray:
+        _pack_array(value, out)
+    elif isinstance(value, BaseModel):
+        keys = _field_keys(t)
+        out.append(_header(0x80, 16, 0xDE, 0xDF, len(keys)))
+        for k, packed in keys:
+            out.append(packed)
             _pack(getattr(value, k), out)
     elif isinstance(value, np.ndarray):
-        wire = array_to_wire(value)
-        out.append(b"\x83")
-        out += (_ARRAY_KEYS[0], _packb(wire["dtype"]), _ARRAY_KEYS[2], _packb(wire["shape"]))
-        out += (_ARRAY_KEYS[4], _bin_header(len(wire["bytes"])), wire["bytes"])
+        _pack_array(value, out)
     elif isinstance(value, dict):
         out.append(_header(0x80, 16, 0xDE, 0xDF, len(value)))
         for k, v in value.items():
@@ -100,17 +140,25 @@ def _pack(value: Any, out: list) -> None:
         out.append(_packb(value))
 
 
+#: the envelope of each message class: map header, schema and version
+_ENVELOPES: dict[type, bytes] = {}
+
+
 def encode(message: Message) -> bytes:
     """The msgpack bytes of ``message``, envelope included: exactly what ``msgpack.packb`` gives
     for the equivalent plain map, built with a single copy of each array."""
     cls = type(message)
-    if cls.SCHEMA not in REGISTRY:
-        raise TypeError(f"{cls.__name__} is not a registered message")
-    fields = cls.model_fields
-    out: list = [_header(0x80, 16, 0xDE, 0xDF, len(fields) + 2)]
-    out += (_packb("schema"), _packb(cls.SCHEMA), _packb("version"), _packb(cls.VERSION))
-    for k in fields:
-        out.append(_packb(k))
+    envelope = _ENVELOPES.get(cls)
+    if envelope is None:
+        if cls.SCHEMA not in REGISTRY:
+            raise TypeError(f"{cls.__name__} is not a registered message")
+        envelope = _ENVELOPES[cls] = b"".join((
+            _header(0x80, 16, 0xDE, 0xDF, len(cls.model_fields) + 2),
+            _packb("schema"), _packb(cls.SCHEMA), _packb("version"), _packb(cls.VERSION),
+        ))  # fmt: skip
+    out: list = [envelope]
+    for k, packed in _field_keys(cls):
+        out.append(packed)
         _pack(getattr(message, k), out)
     return b"".join(out)
 

@@ -7,6 +7,7 @@ y down, z forward). Quaternions are (w, x, y, z), as in MuJoCo.
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Any
 
 import numpy as np
@@ -30,11 +31,31 @@ class _Check:
         return core_schema.no_info_after_validator_function(self._run, handler(source))
 
 
+#: arrays up to this size are checked entry by entry in Python: a 1 kHz message's 3-vectors
+#: cost a fifth of what numpy's per-call overhead would
+SMALL = 16
+
+
+def _finite(a: np.ndarray) -> bool:
+    if a.size <= SMALL:
+        return all(map(math.isfinite, a.ravel().tolist()))
+    return bool(np.isfinite(a).all())
+
+
+def _unit(a: np.ndarray) -> bool:
+    """Finite with unit norm (within 1e-4)."""
+    if not _finite(a):
+        return False
+    v = a.ravel().tolist() if a.size <= SMALL else None
+    norm = math.sqrt(math.fsum(x * x for x in v)) if v is not None else float(np.linalg.norm(a))
+    return abs(norm - 1.0) <= 1e-4
+
+
 class Finite(_Check):
     """Every entry is finite."""
 
     def check(self, a: np.ndarray) -> None:
-        if not np.isfinite(a).all():
+        if not _finite(a):
             raise ValueError("entries must be finite")
 
 
@@ -69,7 +90,7 @@ class UnitQuaternion(_Check):
     """A unit quaternion (w, x, y, z)."""
 
     def check(self, a: np.ndarray) -> None:
-        if not np.all(np.isfinite(a)) or abs(float(np.linalg.norm(a)) - 1.0) > 1e-4:
+        if not _unit(a):
             raise ValueError("quaternion must be finite with unit norm")
 
 
@@ -77,7 +98,7 @@ class UnitVector(_Check):
     """A unit 3-vector (a direction or a normal)."""
 
     def check(self, a: np.ndarray) -> None:
-        if not np.all(np.isfinite(a)) or abs(float(np.linalg.norm(a)) - 1.0) > 1e-4:
+        if not _unit(a):
             raise ValueError("direction must be finite with unit norm")
 
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
+import services.sim  # noqa: F401  (first: it picks EGL before any test module imports mujoco)
 from services.common.transport import tune
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -213,32 +213,35 @@ class World:
     # -- control ------------------------------------------------------------------------------
 
     def _control(self) -> None:
-        dt, t = self.timestep, self.time
+        """The servos' references and the platform's velocity command for the next step (plain
+        floats: this runs at 1 kHz, where numpy's per-call cost would dominate)."""
+        dt, t, ctrl = self.timestep, self.time, self.data.ctrl
+        dist = self.disturbance
         for s in self.servos.values():
             q_prev = s.q_ref
-            dist = self.disturbance
             if dist is not None and dist.joint == s.name:
                 v = dist.amplitude * math.cos(2 * math.pi * dist.frequency * (t - dist.start))
                 s.q_ref = s.clamp(s.q_ref + v * dt)
             elif s.target is not None:
-                s.q_ref += float(np.clip(s.target - s.q_ref, -s.speed * dt, s.speed * dt))
+                step = s.speed * dt
+                s.q_ref += min(max(s.target - s.q_ref, -step), step)
             elif t < s.velocity_until:
                 s.q_ref = s.clamp(s.q_ref + s.velocity * dt)
             s.v_ref = (s.q_ref - q_prev) / dt
-            self.data.ctrl[s.pos_act] = s.q_ref
-            self.data.ctrl[s.vel_act] = s.v_ref
+            ctrl[s.pos_act] = s.q_ref
+            ctrl[s.vel_act] = s.v_ref
         self._base_control()
 
     def _base_control(self) -> None:
-        r, b, dt = self.robot, self.base, self.timestep
-        x, y, yaw = (float(self.data.qpos[a]) for a in self._base_qpos)
+        r, b, dt, qpos = self.robot, self.base, self.timestep, self.data.qpos
+        x, y, yaw = (float(qpos[a]) for a in self._base_qpos)
         if b.velocity is not None:
             if self.time < b.velocity_until:
                 vx, vy, w = b.velocity
                 c, s = math.cos(yaw), math.sin(yaw)
-                desired = np.array([c * vx - s * vy, s * vx + c * vy, w])
+                desired = [c * vx - s * vy, s * vx + c * vy, w]
             else:  # timed out: brake at the acceleration limits, then hold where it stopped
-                desired = np.zeros(3)
+                desired = [0.0, 0.0, 0.0]
                 if not self._v_cmd.any():
                     self.base = BaseCommand(status="idle")
                     self._hold[:] = (x, y, yaw)
@@ -247,7 +250,7 @@ class World:
                 tx, ty, tyaw = b.waypoints[b.index]
                 last = b.index == len(b.waypoints) - 1
             else:
-                (tx, ty, tyaw), last = self._hold, True
+                (tx, ty, tyaw), last = self._hold.tolist(), True
             ex, ey, eyaw = tx - x, ty - y, wrap(tyaw - yaw)
             dist = math.hypot(ex, ey)
             if not last and dist < 0.1:
@@ -261,29 +264,32 @@ class World:
             turn = min(
                 r.vel_rot, BASE_GAIN * abs(eyaw), 0.95 * math.sqrt(2 * r.acc_rot * abs(eyaw))
             )
-            desired = np.array(
-                [
-                    speed * ex / dist if dist > 1e-9 else 0.0,
-                    speed * ey / dist if dist > 1e-9 else 0.0,
-                    math.copysign(turn, eyaw),
-                ]
-            )
+            desired = [
+                speed * ex / dist if dist > 1e-9 else 0.0,
+                speed * ey / dist if dist > 1e-9 else 0.0,
+                math.copysign(turn, eyaw),
+            ]
             if b.waypoints and last and dist < GOAL_TOLERANCE[0] and abs(eyaw) < GOAL_TOLERANCE[1]:
                 self.base = BaseCommand(goal_id=b.goal_id, status="reached")
                 self._hold[:] = (tx, ty, tyaw)
         # never faster than the limits, never accelerating harder than the limits
         lin = math.hypot(desired[0], desired[1])
         if lin > r.vel_lin:
-            desired[:2] *= r.vel_lin / lin
-        desired[2] = float(np.clip(desired[2], -r.vel_rot, r.vel_rot))
-        dv = desired - self._v_cmd
+            desired[0] *= r.vel_lin / lin
+            desired[1] *= r.vel_lin / lin
+        desired[2] = min(max(desired[2], -r.vel_rot), r.vel_rot)
+        v_cmd = self._v_cmd.tolist()
+        dv = [d - v for d, v in zip(desired, v_cmd, strict=True)]
         dv_lin = math.hypot(dv[0], dv[1])
         if dv_lin > r.acc_lin * dt:
-            dv[:2] *= r.acc_lin * dt / dv_lin
-        dv[2] = float(np.clip(dv[2], -r.acc_rot * dt, r.acc_rot * dt))
-        self._v_cmd += dv
-        for act, v in zip(self._base_act, self._v_cmd, strict=True):
-            self.data.ctrl[act] = v
+            dv[0] *= r.acc_lin * dt / dv_lin
+            dv[1] *= r.acc_lin * dt / dv_lin
+        dv[2] = min(max(dv[2], -r.acc_rot * dt), r.acc_rot * dt)
+        ctrl = self.data.ctrl
+        for i, act in enumerate(self._base_act):
+            v = v_cmd[i] + dv[i]
+            self._v_cmd[i] = v
+            ctrl[act] = v
 
     # -- placing the robot (tools and tests: a teleport, not a motion) ----------------------
 
