@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -25,7 +25,10 @@ class GroundTruthObject(Model):
 
 class GroundTruth(Stamped):
     """The truth of the current scene: objects, support graph (direct edges and transitive
-    closure), and optionally the per-pixel segmentation of the current frame of ``camera``."""
+    closure), and optionally the per-pixel segmentation of the current frame of ``camera``;
+    the true camera pose and the odometry's error (version 2)."""
+
+    VERSION: ClassVar[int] = 2
 
     scene: str
     robot: str
@@ -39,6 +42,14 @@ class GroundTruth(Stamped):
     labels: list[str] = Field(default_factory=list)
     roi_min: Vec3 | None = Field(None, description="the scene's region of interest, if any")
     roi_max: Vec3 | None = None
+    T_world_camera: Pose | None = Field(
+        None, description="the true pose of the camera (``camera``, or the robot's first) now"
+    )
+    T_world_odom: Pose | None = Field(
+        None,
+        description="what the robot's odometry gets wrong: T_believed = T_world_odom · T_true "
+        "for the platform and everything on it (None with the sensor models off)",
+    )
 
 
 class GroundTruthQuery(Message):

@@ -77,7 +77,9 @@ def ground_truth_message(
     camera: str = "",
     labels: list[str] | None = None,
     seg: np.ndarray | None = None,
+    T_world_odom: np.ndarray | None = None,
 ) -> GroundTruth:
+    """The truth now; ``T_world_odom`` is the odometry's error when the sensor models run."""
     roi = world.info.roi
     return GroundTruth(
         stamp=world.time,
@@ -94,6 +96,8 @@ def ground_truth_message(
         labels=labels or [],
         roi_min=roi[0] if roi else None,
         roi_max=roi[1] if roi else None,
+        T_world_camera=world.T_world_camera(camera or world.robot.default_cameras[0]),
+        T_world_odom=T_world_odom,
     )
 
 

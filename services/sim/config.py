@@ -40,7 +40,13 @@ class SimSettings(ServiceSettings):
     timestep: float = Field(0.001, gt=0, le=0.01, description="physics step, s")
     noise: bool = Field(True, description="structured-light depth noise")
     shadows: bool = Field(False, description="render shadows (about 4x slower on Mesa)")
-    seed: int = Field(0, description="seed of the depth noise")
+    seed: int = Field(0, description="seed of the depth noise and the sensor models")
+    sensors: bool = Field(
+        False,
+        description="sensor models (services/sim/sensors.py): gyro noise and bias, encoder "
+        "quantisation and noise, joint-state and frame latency, odometry drift; off: the "
+        "simulator's truth",
+    )
     realtime: bool = Field(
         True,
         description="real-time scheduling of physics, IMU and Zenoh's threads (SCHED_RR, else "

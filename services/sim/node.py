@@ -40,6 +40,7 @@ from services.sim import capture, ground_truth
 from services.sim.config import SimSettings
 from services.sim.render import CameraRenderer
 from services.sim.robots import ROBOTS
+from services.sim.sensors import RobotSensors
 from services.sim.world import World
 
 log = logging.getLogger("avs.sim")
@@ -96,6 +97,7 @@ class SimNode:
         self.paused = False
         self.slips = 0
         self.rng = np.random.default_rng(settings.seed)
+        self.sensors = self._sensors(settings.seed)
         self.cameras = settings.cameras or list(self.robot.default_cameras)
         for c in self.cameras:
             self.robot.camera(c)  # raises on an unknown camera
@@ -124,6 +126,14 @@ class SimNode:
             },
         )
 
+    def _sensors(self, seed: int) -> RobotSensors | None:
+        """The robot's sensor models from the world's current (true) platform pose, or None
+        with ``sensors`` off."""
+        if not self.settings.sensors:
+            return None
+        x, y, yaw, *_ = self.world.base_pose()
+        return RobotSensors(self.robot.sensors, seed, (x, y, yaw))
+
     def _next_seq(self, stream: str) -> int:
         self.seq[stream] = self.seq.get(stream, -1) + 1
         return self.seq[stream]
@@ -146,6 +156,9 @@ class SimNode:
                 self.publish_imu()
             if w.steps % state_every == 0:
                 self.publish_state()
+            if self.sensors is not None:  # joint states whose latency has passed
+                for js in self.sensors.joint_states.due(w.time):
+                    self.out_joints.put(js)
 
     def physics_loop(self) -> None:
         """Keep sim time on the wall clock (times --speed); slip rather than burst when behind."""
@@ -178,10 +191,15 @@ class SimNode:
 
     def publish_imu(self) -> None:
         gyro, acc, quat = self.world.imu()
+        stamp = self.world.time
+        if self.sensors is not None:
+            dt = 1.0 / self.settings.imu_rate
+            gyro, acc = self.sensors.imu.measure(gyro, acc, dt)
+            stamp = self.sensors.imu.stamp(stamp)
         self.out_imu.put(
             ImuSample(
                 seq=self._next_seq("imu"),
-                stamp=self.world.time,
+                stamp=stamp,
                 angular_velocity=gyro,
                 linear_acceleration=acc,
                 orientation=quat,
@@ -189,14 +207,22 @@ class SimNode:
         )
 
     def publish_state(self) -> None:
-        w = self.world
+        w, sensors = self.world, self.sensors
         names, q, qd = w.joint_state()
-        self.out_joints.put(
-            JointState(
-                seq=self._next_seq("joints"), stamp=w.time, names=names, position=q, velocity=qd
-            )
+        if sensors is not None:
+            q, qd = sensors.encoders.measure(q, qd)
+        js = JointState(
+            seq=self._next_seq("joints"), stamp=w.time, names=names, position=q, velocity=qd
         )
+        if sensors is not None:  # published when its latency has passed (advance)
+            sensors.joint_states.push(w.time, js)
+        else:
+            self.out_joints.put(js)
         x, y, yaw, vx, vy, vyaw = w.base_pose()
+        if sensors is not None:  # what the odometry believes
+            x, y, yaw = sensors.odometry.update((x, y, yaw))
+            yaw = math.atan2(math.sin(yaw), math.cos(yaw))
+            vx, vy, vyaw = sensors.base_velocity(vx, vy, vyaw)
         self.out_base.put(
             BasePose(
                 seq=self._next_seq("base"),
@@ -216,14 +242,26 @@ class SimNode:
         """Render one camera at the current state (render thread only)."""
         with self.lock:
             T, stamp = capture.snapshot(self.world, renderer, camera)
+            if self.sensors is not None:  # the pose the robot believes the camera has
+                x, y, yaw, *_ = self.world.base_pose()
+                self.sensors.odometry.update((x, y, yaw))
+                T = self.sensors.odometry.T_world_odom() @ T
         rng = self.rng if self.settings.noise else None
         return capture.frame(
             self.world, renderer, camera, T, stamp, self._next_seq(f"rgbd/{camera}"), rng
         )
 
     def publish_frames(self, renderer: CameraRenderer) -> int:
+        """Render and publish every camera; on the wall clock with the sensor models on, each
+        frame goes out its latency after its capture (lockstep frames go out when rendered: the
+        driver waits for them)."""
         for camera in self.cameras:
-            self.out_frames[camera].put(self.frame(renderer, camera))
+            frame = self.frame(renderer, camera)
+            if self.sensors is not None and not self.settings.lockstep:
+                late = frame.stamp + self.sensors.spec.frame_latency - self.world.time
+                if late > 0:
+                    time.sleep(late / self.settings.speed)
+            self.out_frames[camera].put(frame)
         return len(self.cameras)
 
     # -- inputs -------------------------------------------------------------------------------
@@ -273,9 +311,9 @@ class SimNode:
             world = World(scene, ROBOTS[robot], timestep=self.settings.timestep)
             with self.lock:
                 self.world = world
-                self.rng = np.random.default_rng(
-                    request.seed if request.seed is not None else self.settings.seed
-                )
+                seed = request.seed if request.seed is not None else self.settings.seed
+                self.rng = np.random.default_rng(seed)
+                self.sensors = self._sensors(seed)
                 self.seq.clear()
                 self._gt_cache = None
             return self.status()
@@ -325,7 +363,10 @@ class SimNode:
 
             labels, seg = self.worker.submit(segment)
         with self.lock:
-            return capture.ground_truth_message(self.world, edges, closure, camera, labels, seg)
+            odom = self.sensors.odometry.T_world_odom() if self.sensors is not None else None
+            return capture.ground_truth_message(
+                self.world, edges, closure, camera, labels, seg, odom
+            )
 
     def close(self) -> None:
         with contextlib.suppress(Exception):

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from services.common.robots import JOINT_SPEED
+from services.sim.sensors import SensorSpec
 
 ROBOTS_DIR = Path(__file__).parent / "robots"
 
@@ -38,6 +39,8 @@ class RobotInfo:
     joint_speed: dict[str, float] = field(default_factory=dict)
     #: joint positions at start
     home: dict[str, float] = field(default_factory=dict)
+    #: what its IMU, encoders, cameras and odometry get wrong (used with the sim's ``sensors``)
+    sensors: SensorSpec = field(default_factory=SensorSpec)
 
     @property
     def mjcf(self) -> Path:

@@ -243,3 +243,44 @@ def test_recording_replays_the_same_messages_in_the_same_order(client, router, p
     assert sorted(by_key_replayed) == sorted(by_key_original)
     for key in by_key_original:
         assert by_key_replayed[key] == by_key_original[key], key
+
+
+def test_sensor_models_over_zenoh(client, router, procs):
+    """With ``--sensors`` the streams are what a robot measures: a still head's gyro scatters
+    with the noise density, joint states come out their latency after the instant they are
+    stamped with, on the encoders' grid, and state/base is the odometry's belief, which the
+    ground truth relates to the true pose (T_world_odom) after a drive."""
+    from services.sim.sensors import SensorSpec
+
+    spec = SensorSpec()
+    sim = start_sim(procs, router, "--lockstep", "--sensors", "--scene", "tabletop_clutter",
+                    instance="sensors")  # fmt: skip
+    wait_alive(client, "sensors", sim)
+    imu, joints, base = (
+        Collector(client, k) for k in (KEYS.imu(), KEYS.joints(), KEYS.base_state())
+    )
+    control(client, op="step", n=2000)  # still
+    wait_for(lambda: len(imu.messages()) >= 2000, 30, "the IMU")
+    gyro = np.array([s.angular_velocity for s in imu.messages()])
+    density = np.diff(gyro, axis=0).std(axis=0) / np.sqrt(2) * np.sqrt(1e-3)
+    assert np.allclose(density, spec.gyro_noise_density, rtol=0.1), density
+    states: list[JointState] = joints.messages()
+    # 200 Hz, each out 2 ms after its stamp: the one measured at 2.000 s is still on its way
+    assert len(states) == 399 and states[-1].stamp == pytest.approx(1.995, abs=1e-9)
+    steps = np.array([s.position for s in states]) / spec.encoder_resolution
+    assert np.allclose(steps, np.round(steps), atol=1e-6)
+
+    goal = matched_publisher(client, KEYS.cmd_base(), timeout=30)
+    goal.put(encode(BaseGoal(goal_id="g", x=-0.8, y=0.0, yaw=0.0)))
+    control(client, op="step", n=6000)
+    wait_for(lambda: len(base.messages()) >= 1600, 30, "the base states")
+    believed: BasePose = base.messages()[-1]
+    (reply,) = client.get(
+        KEYS.ground_truth(), payload=encode(GroundTruthQuery(segmentation=False)), timeout=30
+    )
+    gt = decode(reply.ok.payload.to_bytes(), GroundTruth)
+    assert gt.T_world_odom is not None and gt.T_world_camera is not None
+    # the odometry believes it reached the goal; the truth is short of it by the scale error
+    assert (believed.x, believed.y) == pytest.approx((-0.8, 0.0), abs=0.02)
+    drift = np.linalg.norm(gt.T_world_odom[:2, 3])
+    assert 0.003 < drift < 0.03, drift  # ~1.5 % of the ~0.9 m driven
