@@ -56,6 +56,7 @@ KEY_TABLE: tuple[KeySpec, ...] = (
     KeySpec("memory/scene", ("SceneModel",), "stream", "scene_memory", "block", "data", False, "put on change + queryable"),
     KeySpec("memory/occupancy/**", ("OccupancyStats", "OccupancySlice"), "queryable", "scene_memory", note="queryable"),
     KeySpec("memory/cloud", ("PointCloud",), "queryable", "scene_memory", note="queryable"),
+    KeySpec("memory/pose_correction", ("PoseCorrection",), "stream", "scene_memory", "block", "data", False, "per integrated frame (registration on)"),
     KeySpec("nbv/candidates", ("ViewCandidates",), "stream", "nbv", "block", "data", False, "per planning step"),
     KeySpec("nbv/next_view", ("NextBestView",), "stream", "nbv", "block", "interactive_low", False, "per planning step"),
     KeySpec("nbv/plan", ("PlanRequest", "NextBestView"), "queryable", "nbv", note="queryable"),
@@ -123,6 +124,9 @@ class Keys:
 
     def cloud(self) -> str:
         return self.key("memory/cloud")
+
+    def pose_correction(self) -> str:
+        return self.key("memory/pose_correction")
 
     def candidates(self) -> str:
         return self.key("nbv/candidates")

@@ -196,3 +196,20 @@ class PointCloud(Stamped):
     points: Annotated[np.ndarray, Array("float32", ("n", 3), description="world, m")]
     colours: Annotated[np.ndarray, Array("uint8", ("n", 3))] | None = None
     voxel_size: float = Field(0.0, ge=0, description="downsampling voxel, 0 if none")
+
+
+class PoseCorrection(Stamped):
+    """What view registration (A.5) found the odometry to be off by (memory/pose_correction),
+    estimated on one frame: T_world = T_world_odom · T_odometry for the platform and everything
+    on it. ``accepted`` false: this frame could not be registered (``reason``) and
+    ``T_world_odom`` is still the last accepted correction."""
+
+    T_world_odom: Pose
+    camera: str
+    frame_seq: int = Field(ge=0)
+    accepted: bool
+    reason: str = ""
+    fitness: float = Field(0.0, ge=0, le=1, description="share of the frame's points on the map")
+    rmse: float = Field(0.0, ge=0, description="of the matched points, m (0: none matched)")
+    registration_ms: float = Field(0.0, ge=0)
+    refused: int = Field(0, ge=0, description="frames not registered so far")

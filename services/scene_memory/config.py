@@ -36,3 +36,8 @@ class SceneMemorySettings(ServiceSettings):
     max_replay_s: float = Field(
         0.5, gt=0, description="a snapshot once the journal since the last took this long"
     )
+    registration: bool = Field(
+        False,
+        description="register each integrated frame against the cloud so far (thesis A.5: "
+        "point-to-plane ICP from the odometry pose) and publish memory/pose_correction",
+    )

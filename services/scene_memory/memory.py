@@ -12,6 +12,7 @@ import numpy as np
 from schemas import CameraIntrinsics, PointCloud, RgbdFrame, SceneModel, SceneObservation
 from services.scene_memory.fusion import Fusion, FusionConfig, Update, voxel_keys
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap
+from services.scene_memory.registration import RegistrationConfig, camera_points, register
 
 MAX_CLOUD = 400_000  # points the registered cloud keeps
 
@@ -30,9 +31,20 @@ class MemoryConfig:
     roi: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
     fusion: FusionConfig = field(default_factory=FusionConfig)
     occupancy: OccupancyConfig = field(default_factory=OccupancyConfig)
+    #: view registration (A.5) of each integrated frame against the cloud so far; None: the
+    #: frames' poses are taken as they come
+    registration: RegistrationConfig | None = None
 
 
 class SceneMemory:
+    #: the odometry's correction found by the last accepted registration: T_world =
+    #: T_world_odom · T_odometry (None: identity); the prior of the next frame's registration
+    T_world_odom: np.ndarray | None = None
+    #: the last registration's outcome (accepted, reason, fitness, rmse, ms), and the count of
+    #: refused ones
+    last_registration: dict | None = None
+    registrations_refused: int = 0
+
     def __init__(self, config: MemoryConfig | None = None) -> None:
         self.config = config or MemoryConfig()
         c = self.config
@@ -69,8 +81,10 @@ class SceneMemory:
             return 0
         self.last_keyframe = np.array(frame.T_world_camera, float)
         t0 = time.perf_counter()
-        K, T = frame.intrinsics, frame.T_world_camera
+        K = frame.intrinsics
         max_range = min(self.config.occupancy.max_range, frame.depth_max or np.inf)
+        self.timings_ms = {}
+        T = self.registered_pose(frame, max_range)
         roi = self.config.roi
         if roi is not None:
             unknown = self.occupancy.counts(*roi)[0]
@@ -99,11 +113,30 @@ class SceneMemory:
         _, first = np.unique(voxel_keys(merged, self.config.cloud_voxel), return_index=True)
         first = np.sort(first)[-MAX_CLOUD:]
         self.cloud, self.colours = merged[first], colours[first]
-        self.timings_ms = {
-            "integrate_ms": (t1 - t0) * 1e3,
-            "cloud_ms": (time.perf_counter() - t1) * 1e3,
-        }
+        self.timings_ms["integrate_ms"] = (t1 - t0) * 1e3
+        self.timings_ms["cloud_ms"] = (time.perf_counter() - t1) * 1e3
         return n
+
+    def registered_pose(self, frame: RgbdFrame, max_range: float) -> np.ndarray:
+        """The frame's camera pose in the map: its odometry pose corrected by the last
+        correction, refined against the cloud so far when registration is on (A.5)."""
+        T_odom = np.asarray(frame.T_world_camera, float)
+        prior = T_odom if self.T_world_odom is None else self.T_world_odom @ T_odom
+        c = self.config.registration
+        if c is None or len(self.cloud) == 0:
+            return prior
+        pts = camera_points(frame.depth, frame.intrinsics, self.config.depth_min, max_range)
+        result = register(pts, prior, self.cloud.astype(np.float64), c)
+        self.last_registration = {
+            "accepted": result.accepted, "reason": result.reason, "fitness": result.fitness,
+            "rmse": result.rmse, "ms": result.ms, "stamp": frame.stamp,
+        }  # fmt: skip
+        self.timings_ms["registration_ms"] = result.ms
+        if not result.accepted:
+            self.registrations_refused += 1
+            return prior
+        self.T_world_odom = result.T_world_camera @ np.linalg.inv(T_odom)
+        return result.T_world_camera
 
     def fuse(self, obs: SceneObservation) -> Update:
         t0 = time.perf_counter()

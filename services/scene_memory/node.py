@@ -9,6 +9,7 @@ frame's camera, on ``sensors/rgbd/registered``: a perception worker run with
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Iterator
@@ -20,6 +21,7 @@ from schemas import (
     OccupancySlice,
     OccupancyStats,
     PointCloud,
+    PoseCorrection,
     RgbdFrame,
     SceneModel,
     SceneObservation,
@@ -34,6 +36,7 @@ from services.scene_memory.fusion import FusionConfig
 from services.scene_memory.memory import MemoryConfig, SceneMemory, registered_view
 from services.scene_memory.occupancy import OccupancyConfig
 from services.scene_memory.persistence import Store
+from services.scene_memory.registration import RegistrationConfig
 
 log = logging.getLogger("avs.scene_memory")
 
@@ -51,6 +54,7 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
             roi=(tuple(s.roi_min), tuple(s.roi_max)) if s.roi_min and s.roi_max else None,
             keyframe_move=s.keyframe_move,
             keyframe_turn=s.keyframe_turn,
+            registration=RegistrationConfig() if s.registration else None,
         )
     )
 
@@ -70,6 +74,7 @@ class SceneMemoryNode:
         self.memory, self.n = self._restore()
         k = node.keys
         self.out_scene = node.publisher(k.scene())
+        self.out_correction = node.publisher(k.pose_correction())
         self.out_registered = (
             node.publisher(k.rgbd("registered")) if settings.fusion != "sg" else None
         )
@@ -139,6 +144,8 @@ class SceneMemoryNode:
             return
         if self.memory.is_keyframe(frame.T_world_camera):
             self._update("frame", frame)
+            if self.settings.registration:
+                self.out_correction.put(self.correction(frame))
         else:
             self._update("skip", None)
             self.node.metrics.gauge("frames_skipped", self.memory.frames_skipped)
@@ -152,6 +159,22 @@ class SceneMemoryNode:
             return  # pc fusion takes the registered cloud's observations only
         self._update("observation", obs)
         self.out_scene.put(self.scene())
+
+    def correction(self, frame: RgbdFrame) -> PoseCorrection:
+        """What registering ``frame`` found (the first frame starts the map: identity)."""
+        with self.lock:
+            m = self.memory
+            last = m.last_registration or {"accepted": True, "reason": "", "fitness": 1.0,
+                                           "rmse": 0.0, "ms": 0.0}  # fmt: skip
+            T = m.T_world_odom if m.T_world_odom is not None else np.eye(4)
+            refused = m.registrations_refused
+        self.node.metrics.gauge("registrations_refused", refused)
+        rmse = last["rmse"] if math.isfinite(last["rmse"]) else 0.0
+        return PoseCorrection(
+            seq=frame.seq, stamp=frame.stamp, T_world_odom=T, camera=frame.camera,
+            frame_seq=frame.seq, accepted=last["accepted"], reason=last["reason"],
+            fitness=last["fitness"], rmse=rmse, registration_ms=last["ms"], refused=refused,
+        )  # fmt: skip
 
     def scene(self) -> SceneModel:
         with self.lock:

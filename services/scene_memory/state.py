@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from schemas import scene as scene_schemas
-from services.scene_memory import fusion, memory, occupancy
+from services.scene_memory import fusion, memory, occupancy, registration
 
 MAGIC = b"AVS-SCENE-MEMORY\x00"
 VERSION = 1
@@ -41,6 +41,7 @@ ALLOWED: dict[str, type] = {
         fusion.Update,
         occupancy.OccupancyMap,
         occupancy.OccupancyConfig,
+        registration.RegistrationConfig,
     )
 }
 MODELS: dict[str, type[BaseModel]] = {
