@@ -12,7 +12,12 @@ import numpy as np
 from schemas import CameraIntrinsics, PointCloud, RgbdFrame, SceneModel, SceneObservation
 from services.scene_memory.fusion import Fusion, FusionConfig, Update, voxel_keys
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap
-from services.scene_memory.registration import RegistrationConfig, camera_points, register
+from services.scene_memory.registration import (
+    RegistrationConfig,
+    camera_points,
+    moved,
+    register,
+)
 
 MAX_CLOUD = 400_000  # points the registered cloud keeps
 
@@ -139,7 +144,11 @@ class SceneMemory:
         return result.T_world_camera
 
     def fuse(self, obs: SceneObservation) -> Update:
+        """Fuse an observation (Algorithm 2), moved into the registered map by the odometry's
+        correction when registration has found one."""
         t0 = time.perf_counter()
+        if self.T_world_odom is not None:
+            obs = moved(obs, self.T_world_odom)
         update = self.fusion.update(obs)
         self.timings_ms["fuse_ms"] = (time.perf_counter() - t0) * 1e3
         return update

@@ -15,11 +15,12 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import open3d as o3d
 
-from schemas import CameraIntrinsics
+from schemas import BoxModel, CameraIntrinsics, CylinderModel, PlaneModel, SceneObservation
 
 
 @dataclass(frozen=True)
@@ -154,3 +155,42 @@ def pose_difference(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
         float(np.linalg.norm(A[:3, 3] - B[:3, 3])),
         math.degrees(math.acos(max(-1.0, min(1.0, float(cos))))),
     )
+
+
+def moved(obs: SceneObservation, T: np.ndarray) -> SceneObservation:
+    """``obs`` with all its geometry moved by the rigid transform ``T`` (world → world): the
+    primitives' models, boxes and inliers, support contacts, affordance poses and the camera
+    pose. Perception placed the observation with the odometry's pose; T_world_odom puts it in
+    the registered map."""
+    R, t = T[:3, :3], T[:3, 3]
+
+    def point(p: np.ndarray) -> np.ndarray:
+        return R @ np.asarray(p, float) + t
+
+    def model(m: Any) -> Any:
+        if isinstance(m, PlaneModel):  # n·x + d = 0  →  (R n)·x' + d − (R n)·t = 0
+            n = R @ m.normal
+            return m.model_copy(update={"normal": n, "d": float(m.d - n @ t)})
+        update: dict[str, Any] = {"center": point(m.center)}
+        if isinstance(m, CylinderModel):
+            update["axis"] = R @ m.axis
+        if isinstance(m, BoxModel):
+            update["rotation"] = R @ m.rotation
+        return m.model_copy(update=update)
+
+    def primitive(p: Any) -> Any:
+        box = p.obb
+        obb = box.model_copy(update={"center": point(box.center), "rotation": R @ box.rotation})
+        inliers = (np.asarray(p.inliers, np.float64) @ R.T + t).astype(np.float32)
+        return p.model_copy(update={"model": model(p.model), "obb": obb, "inliers": inliers})
+
+    primitives = [primitive(p) for p in obs.primitives]
+    support = [
+        e.model_copy(update={"contact": point(e.contact)}) if e.contact is not None else e
+        for e in obs.support_edges
+    ]
+    affordances = [a.model_copy(update={"poses": T @ a.poses}) for a in obs.affordances]
+    return obs.model_copy(update={
+        "primitives": primitives, "support_edges": support, "affordances": affordances,
+        "T_world_camera": T @ obs.T_world_camera,
+    })  # fmt: skip
