@@ -118,12 +118,12 @@ def register(
     reg = o3d.pipelines.registration
     p2l = reg.TransformationEstimationPointToPlane()
     stop = reg.ICPConvergenceCriteria(max_iteration=c.iterations)
-    target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(3 * c.coarse_voxel, 30))
+    # one set of normals, on the coarse map (a plane sampled at 2 cm is still the plane): the
+    # normals are the cost that grows with the map
+    target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(2.5 * c.coarse_voxel, 12))
     coarse = reg.registration_icp(source, target, c.coarse_distance, eye, p2l, stop)
-    # the fine pass on the finer clouds, from where the coarse one ended
+    # the fine pass: the frame's finer cloud, from where the coarse one ended
     source = _cloud(world, c.fine_voxel)
-    target = _cloud(near, c.fine_voxel)
-    target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(3 * c.fine_voxel, 30))
     fine = reg.registration_icp(source, target, c.fine_distance, coarse.transformation, p2l, stop)
     correction = np.asarray(fine.transformation)
     # the geometry's conditioning, on the target normals the fine pass matched
