@@ -6,6 +6,12 @@ as thesis Fig. 3.10 and 3.11).
 Paths: ``orbit`` (an arc around the roi's centre at the start distance, views that would put
 the platform into furniture skipped), ``line`` (a sideways line through robot_start, facing
 the roi), or a JSON file ``[[x, y], ...]`` of platform positions (each looks at the roi).
+
+With ``--noise on`` (the default) the frames carry the robot's sensor models: structured-light
+depth noise, and the camera pose the drifting odometry believes (the drift of driving from view
+to view); ``--registration on`` (the default) refines each pose against the map first (A.5).
+The indices are always scored against ground truth placed with the true camera pose, so a
+misregistered view shows in them; each view reports its camera pose error after registration.
 """
 
 from __future__ import annotations
@@ -36,6 +42,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fusion", choices=["pc", "sg", "pc+sg"], default="sg")
     p.add_argument("--voxel", type=positive_float, default=0.01, help="occupancy voxel, m")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--noise",
+        choices=["on", "off"],
+        default="on",
+        help="the robot's sensor models: depth noise, and odometry drift accumulated along the "
+        "path as if driven (off: ground-truth poses and depth)",
+    )
+    p.add_argument(
+        "--registration", choices=["on", "off"], default="on",
+        help="register each view against the map before fusing it (thesis A.5)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=_fuse)
 
@@ -52,6 +69,10 @@ class ViewMetrics:
     integrate_ms: float
     fuse_ms: float
     base: list[float]
+    #: the camera pose the map used (odometry, registered when on) against the true one
+    pose_error_m: float = 0.0
+    pose_error_deg: float = 0.0
+    registration_ms: float = 0.0
 
 
 def path_bases(world, path: str, views: int, centre: np.ndarray) -> list[tuple[float, float]]:
@@ -87,6 +108,17 @@ def spread(items: list, n: int) -> list:
     return [items[i] for i in np.linspace(0, len(items) - 1, n).round().astype(int)]
 
 
+def driven(odometry, start: tuple[float, float, float], goal: tuple[float, float, float]) -> None:
+    """Feed the odometry the straight drive from ``start`` to ``goal`` in 5 cm steps, turning on
+    the way: where a scripted path places the robot, its drift accumulates as if driven."""
+    steps = max(1, int(math.hypot(goal[0] - start[0], goal[1] - start[1]) / 0.05))
+    turn = math.remainder(goal[2] - start[2], math.tau)
+    for k in range(1, steps + 1):
+        f = k / steps
+        odometry.update((start[0] + f * (goal[0] - start[0]),
+                         start[1] + f * (goal[1] - start[1]), start[2] + f * turn))  # fmt: skip
+
+
 def run_fusion(args: argparse.Namespace, progress=None):
     """The fusion run itself; returns (per-view metrics, the memory, the ground truth)."""
     from avs import evaluation
@@ -96,9 +128,11 @@ def run_fusion(args: argparse.Namespace, progress=None):
     from services.scene_memory.fusion import FusionConfig
     from services.scene_memory.memory import MemoryConfig, SceneMemory, registered_view
     from services.scene_memory.occupancy import OccupancyConfig
+    from services.scene_memory.registration import RegistrationConfig, pose_difference
     from services.sim import capture, ground_truth
     from services.sim.render import CameraRenderer
     from services.sim.robots import ROBOTS
+    from services.sim.sensors import Odometry
     from services.sim.world import World
 
     world = World(args.scene, ROBOTS[args.robot])
@@ -122,25 +156,38 @@ def run_fusion(args: argparse.Namespace, progress=None):
             bounds_max=tuple(hi),
             fusion=FusionConfig(mode=args.fusion),
             occupancy=OccupancyConfig(voxel=args.voxel),
+            registration=RegistrationConfig() if args.registration == "on" else None,
         )
     )
+    odometry = None
+    if args.noise == "on" and bases:
+        x0, y0 = bases[0]
+        pose0 = (x0, y0, math.atan2(centre[1] - y0, centre[0] - x0))
+        odometry = Odometry(world.robot.sensors, np.random.default_rng([args.seed, 15]), pose0)
     renderer = CameraRenderer(world.model, 640, 480)
     perception = Perception()
     registered = Perception(PerceptionConfig(stride=1))
-    rng = np.random.default_rng(args.seed)
+    rng = np.random.default_rng(args.seed) if args.noise == "on" else None
     edges, closure = ground_truth.support_graph(world.model, world.data, world.info)
     segments_seen = []
     metrics: list[ViewMetrics] = []
     gt = None
     for i, (x, y) in enumerate(bases):
-        world.place(base=(x, y, math.atan2(centre[1] - y, centre[0] - x)))
+        base = (x, y, math.atan2(centre[1] - y, centre[0] - x))
+        world.place(base=base)
         world.look_at(centre)
-        T, stamp = capture.snapshot(world, renderer, camera)
+        T_true, stamp = capture.snapshot(world, renderer, camera)
+        T = T_true
+        if odometry is not None:  # the pose the robot believes, as the sim's models give it
+            driven(odometry, odometry.true, base)
+            T = odometry.T_world_odom() @ T_true
         frame = capture.frame(world, renderer, camera, T, stamp, i, rng)
         labels, seg = capture.segmentation(world, renderer, camera)
         gt = capture.ground_truth_message(world, edges, closure, camera, labels, seg)
         memory.integrate(frame)
         integrate_ms = memory.timings_ms["integrate_ms"]
+        used = T if memory.T_world_odom is None else memory.T_world_odom @ T
+        pose_error = pose_difference(T_true, used)
         if args.fusion == "sg":
             result = perception.perceive(
                 frame.depth, frame.rgb, frame.intrinsics, frame.T_world_camera
@@ -151,8 +198,8 @@ def run_fusion(args: argparse.Namespace, progress=None):
             result = registered.perceive(view.depth, None, view.intrinsics, view.T_world_camera)
             obs = observation(result, view, i, "fuse", 3.0, 1)
         update = memory.fuse(obs)
-        segments_seen.append(
-            evaluation.labelled_points(gt, frame.depth, frame.intrinsics, frame.T_world_camera)
+        segments_seen.append(  # the truth, where the true camera pose puts it
+            evaluation.labelled_points(gt, frame.depth, frame.intrinsics, T_true)
         )
         scene = memory.scene(i)
         scores = evaluation.score_primitives(
@@ -175,6 +222,9 @@ def run_fusion(args: argparse.Namespace, progress=None):
                 integrate_ms,
                 memory.timings_ms["fuse_ms"],
                 [x, y],
+                pose_error[0],
+                pose_error[1],
+                memory.timings_ms.get("registration_ms", 0.0),
             )
         )
         if progress:
@@ -234,6 +284,8 @@ def _fuse(args: argparse.Namespace) -> int:
         "scene": args.scene,
         "path": args.path,
         "fusion": args.fusion,
+        "noise": args.noise,
+        "registration": args.registration,
         "views": [asdict(m) for m in metrics],
     }
     (args.out / "metrics.json").write_text(json.dumps(out, indent=2))

@@ -20,6 +20,8 @@ from services.scene_memory.registration import (
 )
 
 MAX_CLOUD = 400_000  # points the registered cloud keeps
+#: the camera name of ``registered_view``'s frames: what is perceived in them is in the map
+REGISTERED_CAMERA = "registered"
 
 
 @dataclass
@@ -145,9 +147,10 @@ class SceneMemory:
 
     def fuse(self, obs: SceneObservation) -> Update:
         """Fuse an observation (Algorithm 2), moved into the registered map by the odometry's
-        correction when registration has found one."""
+        correction when registration has found one (not one perceived in the registered cloud's
+        own view, which is in the map already)."""
         t0 = time.perf_counter()
-        if self.T_world_odom is not None:
+        if self.T_world_odom is not None and obs.camera != REGISTERED_CAMERA:
             obs = moved(obs, self.T_world_odom)
         update = self.fusion.update(obs)
         self.timings_ms["fuse_ms"] = (time.perf_counter() - t0) * 1e3
@@ -195,7 +198,7 @@ def registered_view(
     return RgbdFrame(
         seq=frame.seq,
         stamp=frame.stamp,
-        camera="registered",
+        camera=REGISTERED_CAMERA,
         intrinsics=Kr,
         rgb=rgb,
         depth=depth.reshape(height, width).astype(np.float32),

@@ -33,7 +33,12 @@ from services.common.node import Node
 from services.common.standby import wait_for_turn
 from services.scene_memory.config import SceneMemorySettings
 from services.scene_memory.fusion import FusionConfig
-from services.scene_memory.memory import MemoryConfig, SceneMemory, registered_view
+from services.scene_memory.memory import (
+    REGISTERED_CAMERA,
+    MemoryConfig,
+    SceneMemory,
+    registered_view,
+)
 from services.scene_memory.occupancy import OccupancyConfig
 from services.scene_memory.persistence import Store
 from services.scene_memory.registration import RegistrationConfig
@@ -76,9 +81,9 @@ class SceneMemoryNode:
         self.out_scene = node.publisher(k.scene())
         self.out_correction = node.publisher(k.pose_correction())
         self.out_registered = (
-            node.publisher(k.rgbd("registered")) if settings.fusion != "sg" else None
+            node.publisher(k.rgbd(REGISTERED_CAMERA)) if settings.fusion != "sg" else None
         )
-        self.obs_camera = "registered" if settings.fusion != "sg" else settings.camera
+        self.obs_camera = REGISTERED_CAMERA if settings.fusion != "sg" else settings.camera
         # the work runs on the inputs' own threads, never in Zenoh's callbacks: observations
         # in order (a few waiting at most), depth frames newest first (one at a time)
         node.subscribe(k.observation(), SceneObservation, self.on_observation, queue=OBS_QUEUE)
