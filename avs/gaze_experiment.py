@@ -7,11 +7,17 @@ The sim runs in lockstep at 1 kHz with the stabiliser's control step between phy
 integrates light over an exposure (the mean of renders across it), so a camera that moves
 during the exposure gives a blurred image, as a real one does. Per frame: the optical-flow
 error against the previous frame, the perceptual blur, and whether the object is localised;
-once for the cup (HSV segmentation), once for the textured box (feature matching)."""
+once for the cup (HSV segmentation), once for the textured box (feature matching).
+
+With ``sensors`` (the default) the controller sees what the live stack gives it: the robot's
+gyro with white noise and a drifting bias, joint states from noisy 14-bit encoders at 200 Hz,
+each 2 ms late (``services/sim/sensors.py``), and the gyro sample of each joint state's instant
+for the VOR, as the gaze node takes it; without, the simulator's exact state every step."""
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -21,9 +27,11 @@ from avs.image_quality import CupFinder, TextureFinder, blur, flow_rmse_deg_s
 from services.common.robots import robot_mjcf
 from services.gaze.config import FIXATING
 from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics
+from services.gaze.sensing import nearest
 from services.gaze.stabiliser import GazeStabiliser, StabiliserConfig
 from services.sim.render import CameraRenderer, intrinsics
 from services.sim.robots import ROBOTS
+from services.sim.sensors import RobotSensors
 from services.sim.world import World
 
 #: the objects of the localization scene, and how each is found
@@ -44,6 +52,9 @@ class GazeExperimentConfig:
     exposure: float = 0.02  # s of light per frame
     subframes: int = 4  # renders averaged over the exposure
     settle: float = 1.0  # s of fixating before the disturbance starts
+    sensors: bool = True  # the robot's sensor models (noise, bias, latency), else exact state
+    state_rate: float = 200.0  # joint states per second with the sensor models (the sim's)
+    seed: int = 0
 
 
 @dataclass
@@ -92,12 +103,37 @@ def run_object(
     K = intrinsics(world.model, cam_id, 640, 480)
     deg_per_px = (math.degrees(math.atan(1 / K.fx)), math.degrees(math.atan(1 / K.fy)))
 
+    sensors = RobotSensors(robot.sensors, c.seed, world.base_pose()[:3]) if c.sensors else None
+    state_every = max(1, round(1 / (c.state_rate * world.timestep)))
+    gyros: deque[tuple[float, np.ndarray]] = deque(maxlen=20)
+    latest: list = []  # the newest delivered joint state: (stamp, names, q, q̇)
+
+    def sense() -> None:
+        """One physics step's measurements: a gyro sample, and every ``state_every`` steps a
+        joint state that arrives ``joint_latency`` later."""
+        gyro, acc, _ = world.imu()
+        gyros.append((world.time, sensors.imu.measure(gyro, acc, world.timestep)[0]))
+        if world.steps % state_every == 0:
+            names, q, qd = world.joint_state()
+            q, qd = sensors.encoders.measure(q, qd)
+            sensors.joint_states.push(world.time, (world.time, names, q, qd))
+        for js in sensors.joint_states.due(world.time):
+            latest[:] = [js]
+
     def control() -> None:
-        names, q, qd = world.joint_state()
         x, y, yaw, vx, vy, wz = world.base_pose()
+        if sensors is None:
+            names, q, qd = world.joint_state()
+            gyro, latency = world.imu()[0], 0.0
+        else:
+            sense()
+            if not latest:
+                return
+            t, names, q, qd = latest[0]
+            gyro, latency = nearest(gyros, t, 0.6 * world.timestep), world.time - t
         cmd = stab.command(
             target, (x, y, yaw), (vx, vy, wz), dict(zip(names, q, strict=True)),
-            dict(zip(names, qd, strict=True)), world.imu()[0],
+            dict(zip(names, qd, strict=True)), gyro, world.time, latency,
         )  # fmt: skip
         world.command_joints(list(cmd.velocity), "velocity", np.array([*cmd.velocity.values()]))
 
@@ -148,6 +184,8 @@ def run_object(
             if progress is not None:
                 progress(k / steps)
     renderer.close()
+    if progress is not None:
+        progress(1.0)
     return run
 
 

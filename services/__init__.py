@@ -1,1 +1,8 @@
 """AVS services: each a package with a pure core, a thin node and a ``__main__``."""
+
+import os
+
+# numba's parallel kernels on OpenMP (libgomp, which Open3D needs too): left to choose, numba
+# tries first the TBB that Open3D bundles, finds it too old and says so on every command's
+# console
+os.environ.setdefault("NUMBA_THREADING_LAYER", "omp")

@@ -25,6 +25,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, default=10.0, help="s")
     p.add_argument("--stabilize", choices=["on", "off"], default="on")
     p.add_argument("--compare", action="store_true", help="run off and on, print Table 5.1")
+    p.add_argument(
+        "--noise", choices=["on", "off"], default="on",
+        help="the robot's sensor models: gyro noise and bias, encoder noise and quantisation, "
+        "joint-state latency (off: the simulator's exact state every step)",
+    )  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="the sensor models' random stream")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=_run)
 
@@ -84,7 +90,7 @@ def _run(args: argparse.Namespace) -> int:
         return GazeExperimentConfig(
             robot=args.robot, scene=args.scene, disturbance=args.disturbance,
             amplitude=args.amplitude, frequency=args.frequency, duration=args.duration,
-            stabilize=on,
+            stabilize=on, sensors=args.noise == "on", seed=args.seed,
         )  # fmt: skip
 
     if not args.compare:

@@ -16,8 +16,6 @@ import math
 import threading
 import time
 from collections import deque
-from collections.abc import Sequence
-from typing import TypeVar
 
 import numpy as np
 
@@ -38,10 +36,10 @@ from services.gaze.ego_sphere import EgoSphere
 from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics
 from services.gaze.okr import RetinalSlip
 from services.gaze.saliency import ObjectBelief, colour_blobs, pixel_rays
+from services.gaze.sensing import nearest
 from services.gaze.stabiliser import GazeStabiliser, StabiliserConfig
 
 log = logging.getLogger("avs.gaze")
-T = TypeVar("T")
 
 
 def platform_rotation(yaw: float) -> np.ndarray:
@@ -62,18 +60,6 @@ def localisation_covariance(depth: float) -> np.ndarray:
 #: the OKR measures slip only while fixating: the gaze angle error between two frames stayed
 #: below this (rad)
 OKR_MAX_ERROR = math.radians(1.0)
-
-
-def nearest(samples: Sequence[tuple[float, T]], stamp: float, within: float) -> T | None:
-    """The sample nearest ``stamp`` among (stamp, sample) pairs in arrival order, None without
-    one within ``within`` s (scanned from the newest, up to the first older than that)."""
-    best, gap = None, within
-    for t, sample in reversed(samples):
-        if abs(t - stamp) <= gap:
-            best, gap = sample, abs(t - stamp)
-        elif t < stamp:
-            break
-    return best
 
 
 class GazeNode:
@@ -276,6 +262,8 @@ class GazeNode:
                 # which oscillates; no sample within 2.5 ms: no VOR this step
                 nearest(self.gyro_history, js.stamp, 2.5e-3),
                 imu.stamp,
+                # the joint state is up to 5 ms (200 Hz) plus its latency old: carried forward
+                imu.stamp - js.stamp,
             )
             self.current = target + self.stab.offset
             self.error = max(self.error, *cmd.error_rad.values())
@@ -302,6 +290,8 @@ class GazeNode:
         m.gauge("fixation_error_deg", math.degrees(max(cmd.error_rad.values())))
         m.gauge("unpredicted_rad_s", float(np.linalg.norm(cmd.unpredicted)))
         m.gauge("control_steps", self.steps)
+        if self.stab.bias is not None:
+            m.gauge("gyro_bias_deg_s", math.degrees(float(np.linalg.norm(self.stab.bias.bias))))
 
     def _seq(self) -> int:
         self.seq += 1

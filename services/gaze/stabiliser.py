@@ -14,6 +14,10 @@ weight 8× the neck's (the neck moves first; the eyes only where they must, 5.2)
 drawn to mid-range in the null space; joints at their speed or position limits are held there
 and the rest solve the task.
 
+Real sensors (``sensing``): the gyro's bias is estimated while the head is still and taken off
+its readings; the joint state, measured ``latency`` s before the control step, is carried
+forward to it by its velocities.
+
 OKR: the retinal slip s the forward model did not predict (``okr.RetinalSlip``: the target
 drifting across the image) moves the point held, x_des + o, by k_okr·d·(x_cam·s_x + y_cam·s_y)·Δt
 (the image says the target is elsewhere than the model thinks; o leaks back over 10 s).
@@ -28,6 +32,7 @@ import numpy as np
 from numba import njit
 
 from services.gaze.kinematics import EYE_JOINTS, GazeKinematics, cross
+from services.gaze.sensing import GyroBias, GyroBiasConfig, predicted
 
 
 @dataclass
@@ -45,6 +50,9 @@ class StabiliserConfig:
     speed: Mapping[str, float] = field(default_factory=dict)  # rad/s per joint (default 2)
     centring: float = 1.0  # 1/s, the null-space pull towards mid-range
     limit_time: float = 0.05  # s: joints approach their range limits as if to stop in this
+    #: the gyro's bias, estimated while still (None: the readings taken as they are)
+    gyro_bias: GyroBiasConfig | None = field(default_factory=GyroBiasConfig)
+    max_prediction: float = 0.05  # s: a joint state older than this is not carried further
 
 
 @dataclass
@@ -66,6 +74,7 @@ class GazeStabiliser:
         self.last_target: np.ndarray | None = None
         self.offset = np.zeros(3)  # OKR: where the image says the fixation point is, minus x_des
         self.stamp: float | None = None
+        self.bias = GyroBias(config.gyro_bias) if config.gyro_bias is not None else None
 
     def observe_slip(self, camera: str, slip: np.ndarray, dt: float) -> None:
         """OKR: the slip (rad/s along ``camera``'s x and y) over the last ``dt`` s moves the held
@@ -87,26 +96,38 @@ class GazeStabiliser:
         velocity: Mapping[str, float],
         gyro: np.ndarray | None = None,
         stamp: float | None = None,
+        latency: float = 0.0,
     ) -> GazeCommand:
         """Head and eye velocities for one control period. ``base``: odometry (x, y, yaw),
         ``base_twist`` its world velocity (vx, vy, yaw rate); ``position``/``velocity``: the
-        measured joints; ``gyro``: the head IMU's angular velocity (IMU frame), None without
-        one; ``stamp``: the samples' time (for the OKR offset's leak)."""
+        measured joints, ``latency`` s old; ``gyro``: the head IMU's angular velocity (IMU
+        frame) at the joints' instant, None without one; ``stamp``: the control step's time
+        (for the OKR offset's leak)."""
         c, kin = self.c, self.kin
         if stamp is not None and self.stamp is not None:
             self.offset *= np.exp(-max(0.0, stamp - self.stamp) / c.okr_leak)
         self.stamp = stamp
         self.last_target = np.asarray(x_des, float)
         x_des = self.last_target + self.offset
+        twist = base_twist if c.odometry else (0.0, 0.0, 0.0)
+        horizon = min(max(latency, 0.0), c.max_prediction)
+        if horizon > 0.0:  # the joints and the platform where they are now
+            position = predicted(position, velocity, horizon)
+            base = (base[0] + twist[0] * horizon, base[1] + twist[1] * horizon,
+                    base[2] + twist[2] * horizon)  # fmt: skip
         q = kin.configuration(base, position)
         kin.update(q)
-        v = kin.velocity(base_twist if c.odometry else (0.0, 0.0, 0.0), velocity)
+        v = kin.velocity(twist, velocity)
         v_other = v.copy()
         v_other[self.head] = 0.0
         R_imu, p_imu, J_imu = kin.imu_rotation()
         omega_u = np.zeros(3)
         if gyro is not None:
-            omega_u = R_imu @ np.asarray(gyro, float) - J_imu @ v
+            gyro = np.asarray(gyro, float)
+            if self.bias is not None:  # still or not, as the forward model and the gyro say
+                self.bias.update(gyro, R_imu.T @ (J_imu @ v), stamp)
+                gyro = gyro - self.bias.bias
+            omega_u = R_imu @ gyro - J_imu @ v
         rows, targets, errors = [], [], {}
         for cam in c.cameras:
             e, J, angle = kin.fixation(cam, x_des)

@@ -51,7 +51,8 @@ def test_the_cup_finder_wants_the_cup_where_it_is():
 
 @pytest.mark.timeout(600)
 def test_stabilised_flow_error_is_at_most_half_and_localisation_succeeds_more(tmp_path):
-    """One full period of the hip swing (4 s at 0.25 Hz), both modes, both objects."""
+    """One full period of the hip swing (4 s at 0.25 Hz), both modes, both objects, with the
+    robot's sensor models: the flow error falls to 7 % (0.28 of 4.13 deg/s measured)."""
     out = subprocess.run(
         [sys.executable, "-m", "avs.cli", "gaze-experiment", "--compare", "--duration", "4",
          "--out", str(tmp_path)],
@@ -64,7 +65,8 @@ def test_stabilised_flow_error_is_at_most_half_and_localisation_succeeds_more(tm
     assert on["blur"]["mean"] < off["blur"]["mean"]
     for obj in ("cup", "textured"):
         assert on["localization_success"][obj] > off["localization_success"][obj], m
-    assert on["gaze_error_deg"]["cup"] < 0.5 < off["gaze_error_deg"]["cup"]
+    # with the sensor models (the default): 0.020° RMS stabilised, 8.7° not (4 s measured)
+    assert on["gaze_error_deg"]["cup"] < 0.1 and off["gaze_error_deg"]["cup"] > 5.0
     assert "decrease" in out.stdout and "localised: textured" in out.stdout
     for d in (tmp_path, tmp_path / "on", tmp_path / "off"):
         for name in ("flow.png", "blur.png"):

@@ -20,6 +20,7 @@ from schemas import (
     HeadCommand,
     JointState,
     Keys,
+    RgbdFrame,
     ServiceMetrics,
     SimControl,
     SimStatus,
@@ -33,6 +34,9 @@ from tests.scene_memory.builders import box, cylinder, observation
 
 KEYS = Keys("armar3")
 CUP = np.array([1.5, 0.15, 0.86])
+#: the true gaze error over 6 s of the hip swing, real time on 2 cores with the sensor models:
+#: RMS 0.05-0.34°, max 0.14-2.3° measured over five runs (scheduling stalls make the tail)
+RMS_DEG, MAX_DEG = 0.5, 3.0
 
 
 def control(client, **request) -> SimStatus:
@@ -55,6 +59,12 @@ def start_sim_and_gaze(procs, client, router, name: str, sim_args: list[str], ga
     return gaze
 
 
+def gaze_error_deg(T: np.ndarray, target: np.ndarray) -> float:
+    """The angle between a camera's optical axis and the target (deg)."""
+    to, z = target - T[:3, 3], T[:3, 2]
+    return math.degrees(math.atan2(np.linalg.norm(np.cross(z, to)), z @ to))
+
+
 def metrics_of(client, instance: str) -> ServiceMetrics:
     replies = [r.ok for r in client.get(KEYS.metrics("gaze", instance), timeout=5) if r.ok]
     return decode(replies[0].payload.to_bytes(), ServiceMetrics)
@@ -68,13 +78,15 @@ def metrics(client) -> ServiceMetrics:
 def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_imu(
     router, client, procs
 ):
-    sim_args = ["--cameras", "left_foveal", "--fps", "10"]
+    # the robot's sensor models on: the gyro's noise and bias, encoders, 2 ms joint latency
+    sim_args = ["--cameras", "left_foveal", "--fps", "10", "--sensors"]
     gaze = start_sim_and_gaze(procs, client, router, "test", sim_args,
                               ["--blob-camera", "left_foveal"])  # fmt: skip
     lock = threading.Lock()
     joints: list[JointState] = []
     commands: list[HeadCommand] = []
     egospheres: list[EgoSphereSnapshot] = []
+    frames: list[RgbdFrame] = []
 
     def on(sample, kind, into):
         with lock:
@@ -84,6 +96,7 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
         client.declare_subscriber(KEYS.joints(), lambda s: on(s, JointState, joints)),
         client.declare_subscriber(KEYS.cmd_head(), lambda s: on(s, HeadCommand, commands)),
         client.declare_subscriber(KEYS.egosphere(), lambda s: on(s, EgoSphereSnapshot, egospheres)),
+        client.declare_subscriber(KEYS.rgbd("left_foveal"), lambda s: on(s, RgbdFrame, frames)),
     ]
     target = client.declare_publisher(KEYS.gaze_target())
     seq = 0
@@ -101,22 +114,17 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     control(client, op="set_disturbance", joint="hip_yaw", amplitude=20.0, frequency=0.25)
     with lock:
         joints.clear()
+        frames.clear()
     aim(6.0)  # the hip swings by ±12.7°
     with lock:
-        window, cmds = list(joints), list(commands)
-    kin = GazeKinematics(robot_mjcf("armar3"), ["left_foveal"])
-    errors = []
-    for js in window:
-        kin.update(
-            kin.configuration((0.0, 0.0, 0.0), dict(zip(js.names, js.position, strict=True)))
-        )
-        errors.append(math.degrees(kin.fixation("left_foveal", CUP)[2]))
-    errors = np.array(errors)
+        window, cmds, seen = list(joints), list(commands), list(frames)
+    # the sim's true camera pose of each frame (the platform stands, so odometry adds nothing)
+    errors = np.array([gaze_error_deg(f.T_world_camera, CUP) for f in seen])
     hip = [float(js.position[js.names.index("hip_yaw")]) for js in window]
-    print(f"over {len(errors)} states: fixation error RMS {np.sqrt(np.mean(errors**2)):.3f}°, "
+    print(f"over {len(errors)} frames: gaze error RMS {np.sqrt(np.mean(errors**2)):.3f}°, "
           f"max {errors.max():.3f}°; hip swing {math.degrees(np.ptp(hip)):.1f}°")  # fmt: skip
-    assert len(window) > 500 and math.degrees(np.ptp(hip)) > 15
-    assert np.sqrt(np.mean(errors**2)) < 1.0 and errors.max() < 3.0
+    assert len(window) > 500 and math.degrees(np.ptp(hip)) > 15 and len(seen) > 30
+    assert np.sqrt(np.mean(errors**2)) < RMS_DEG and errors.max() < MAX_DEG
     gaze_cmds = [c for c in cmds if c.source == "gaze" and c.mode == "velocity"]
     # one per IMU sample taken: the newest each step, so on a loaded machine fewer (counted);
     # the sustained rate is benchmarks/gaze.py's to measure
@@ -127,6 +135,8 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     # OKR runs on the foveal frames; with the forward model right there is little slip to take
     assert m.messages_in.get(KEYS.rgbd("left_foveal"), 0) > 30
     assert 0 < m.extra["okr_offset_m"] < 0.01
+    # the gyro's bias, estimated while the head was still (the model's: 0.1 °/s σ per axis)
+    assert 0 < m.extra["gyro_bias_deg_s"] < 0.5
     assert m.extra["blobs"] >= 1  # the green cup (and the box's marks) on the ego-sphere
     with lock:
         snapshots = [e for e in egospheres if "blob" in e.sources]

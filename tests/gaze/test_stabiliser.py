@@ -102,7 +102,7 @@ def settle(world, stab):
     assert gaze_error_deg(world, "left_foveal", CUP) < 0.05
 
 
-def test_hip_swing_is_compensated_below_half_a_degree_rms(world):
+def test_hip_swing_is_compensated_to_a_hundredth_of_a_degree_rms(world):
     """Thesis 5.4.1: q̇_hip = A·cos(2πft), A = 20°/s, f = 0.25 Hz, for 10 s."""
     stab = stabiliser()
     rms = {}
@@ -111,14 +111,15 @@ def test_hip_swing_is_compensated_below_half_a_degree_rms(world):
         world.set_disturbance("hip_yaw", math.radians(20), 0.25)
         errors = closed_loop(world, stab, 10_000, stabilise=on)
         rms[on] = float(np.sqrt(np.mean(errors**2)))
-    assert rms[True] < 0.5, rms
+    assert rms[True] < 0.02, rms  # 0.0057° measured
     assert rms[False] > 5.0, rms  # the swing itself moves the gaze by degrees
 
 
-def delayed_loop(world, stab, steps, state_delay, command_delay, aligned):
+def delayed_loop(world, stab, steps, state_delay, command_delay, aligned, predict=False):
     """As over Zenoh on a loaded machine: joint states come at 200 Hz and ``state_delay`` s
     late, commands reach the sim ``command_delay`` s late; the gyro is the newest sample's, or
-    (``aligned``) the one of the joint state's instant, as the gaze node takes it."""
+    (``aligned``) the one of the joint state's instant, as the gaze node takes it; ``predict``:
+    the controller is told the state's age and carries it forward."""
     from collections import deque
 
     states, commands, latest, errors = deque(), deque(), None, []
@@ -130,10 +131,11 @@ def delayed_loop(world, stab, steps, state_delay, command_delay, aligned):
         while states and states[0][0] <= t + 1e-9:
             latest = states.popleft()
         if latest is not None:
-            _, names, q, qd, gyro_then = latest
+            due, names, q, qd, gyro_then = latest
+            age = t - (due - state_delay) if predict else 0.0
             cmd = stab.command(CUP, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0),
                                dict(zip(names, q, strict=True)), dict(zip(names, qd, strict=True)),
-                               gyro_then if aligned else world.imu()[0], t)  # fmt: skip
+                               gyro_then if aligned else world.imu()[0], t, age)  # fmt: skip
             commands.append((t + command_delay, cmd))
         while commands and commands[0][0] <= t + 1e-9:
             c = commands.popleft()[1]
@@ -156,6 +158,20 @@ def test_vor_takes_the_gyro_of_the_joint_states_instant(world):
         rms[aligned] = float(np.sqrt(np.mean(errors**2)))
     assert rms[True] < 0.1, rms
     assert rms[False] > 2 * rms[True], rms
+
+
+def test_latency_is_compensated_by_prediction(world):
+    """Joint states 200 Hz and 10 ms late, commands 5 ms late, the hip swinging: carried
+    forward to the control step by their velocities, the states put the head where it is (RMS
+    0.040° against 0.044° measured; the rest is the commands' own delay)."""
+    rms = {}
+    for predict in (True, False):
+        stab = stabiliser()
+        settle(world, stab)
+        world.set_disturbance("hip_yaw", math.radians(20), 0.25)
+        errors = delayed_loop(world, stab, 4000, 0.010, 0.005, True, predict)
+        rms[predict] = float(np.sqrt(np.mean(errors**2)))
+    assert rms[True] < 0.05 and rms[True] < 0.95 * rms[False], rms
 
 
 def test_vor_catches_a_platform_turn_the_forward_model_did_not_predict(world):
