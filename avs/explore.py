@@ -9,7 +9,8 @@ robot starts, looking at the roi's centre (turning in place first where the neck
 Per view: support-graph precision / recall / F1 (Eq. 4.14-4.16), unknown voxels in the roi,
 path cost and its sum, InlierIndex and OverlappingIndex (Eq. 3.11, 3.12), the predicted and
 the realised information gain, how the primitives map to bodies, planning time, platform
-pose."""
+pose, and the camera pose error after registration (the sim's sensor models drift the
+odometry; the truth is always scored with the true camera pose)."""
 
 from __future__ import annotations
 
@@ -40,6 +41,7 @@ from schemas import (
     OccupancySlice,
     OccupancyStats,
     PlanRequest,
+    PoseCorrection,
     RgbdFrame,
     SceneModel,
     SimControl,
@@ -47,6 +49,7 @@ from schemas import (
     decode,
     encode,
 )
+from services.common.poses import pose_difference
 
 EPISODE_SERVICES = ("sim", "perception", "scene_memory", "nbv")
 #: a view that realises less than this share of its predicted gain is a warning sign
@@ -70,6 +73,9 @@ class EpisodeConfig:
     scale: dict[str, int] = field(default_factory=dict)  # instances per scalable service
     launch: dict[str, list[str]] = field(default_factory=dict)  # command prefix per service
     ready_timeout: float = 120.0
+    #: the robot's sensor models in the sim (noise, bias, latency, odometry drift)
+    noise: bool = True
+    registration: bool = True  # the scene memory registers each frame before fusing it
 
 
 @dataclass
@@ -95,6 +101,11 @@ class ViewRecord:
     vertex_precision: float = 0.0  # primitives that map to a body / all primitives
     segments_per_body: dict[str, int] = field(default_factory=dict)
     bodies_merged: int = 0  # primitives with ≥ 20 % of their points on each of two bodies
+    #: the camera pose the map used (odometry, corrected by registration) against the true one
+    pose_error_m: float = 0.0
+    pose_error_deg: float = 0.0
+    registration_ms: float = 0.0
+    registration: str = ""  # "accepted", or why the frame kept its prior; "" when off
 
 
 @dataclass
@@ -215,6 +226,8 @@ class Episode:
             "AVS_SIM_SCENE": c.scene,
             "AVS_SIM_LOCKSTEP": "true",
             "AVS_SIM_SEED": str(c.seed),
+            "AVS_SIM_SENSORS": str(c.noise).lower(),
+            "AVS_SCENE_MEMORY_REGISTRATION": str(c.registration).lower(),
             "AVS_SCENE_MEMORY_DATA_DIR": str(data_dir),
             "AVS_SCENE_MEMORY_FUSION": c.fusion,
             "AVS_SCENE_MEMORY_VOXEL": str(c.voxel),
@@ -351,6 +364,7 @@ class Episode:
         joints = Latest(session, k.joints(), JointState)
         frames = Latest(session, k.rgbd("head_rgbd"), RgbdFrame)
         scenes = Latest(session, k.scene(), SceneModel)
+        corrections = Latest(session, k.pose_correction(), PoseCorrection)
         self.stop = session.declare_publisher(k.cmd_base())
         self._sim(session, op="reset", scene=c.scene, seed=c.seed)
         self._sim(session, op="step", n=10)
@@ -386,9 +400,18 @@ class Episode:
             b = base.value
             pose = [b.x, b.y, b.yaw]
             visited.append(pose)
-            seen.append(
-                evaluation.labelled_points(gt, frame.depth, frame.intrinsics, frame.T_world_camera)
-            )
+            # the map placed the frame at its odometry pose, corrected by registration; the
+            # truth is scored where the true camera pose puts it
+            T_used, registration_ms, registration = frame.T_world_camera, 0.0, ""
+            if c.registration:
+                corr = corrections.wait(lambda m, s=frame.seq: m.frame_seq >= s, 30,
+                                        f"the pose correction of frame {frame.seq}")  # fmt: skip
+                T_used = corr.T_world_odom @ frame.T_world_camera
+                registration_ms = corr.registration_ms
+                registration = "accepted" if corr.accepted else corr.reason
+            T_true = gt.T_world_camera if gt.T_world_camera is not None else frame.T_world_camera
+            pose_error = pose_difference(T_true, T_used)
+            seen.append(evaluation.labelled_points(gt, frame.depth, frame.intrinsics, T_true))
             scores = evaluation.score_primitives(
                 evaluation.merge_points(seen), scene.primitives, scope=evaluation.bodies_in_roi(gt)
             )
@@ -405,6 +428,7 @@ class Episode:
                 trajectory, nbv.workers,
                 stats.realised_volume if c.ig_measure == "volume" else stats.realised_rays,
                 scores.vertex_precision, scores.segments_per_body, scores.bodies_merged,
+                pose_error[0], pose_error[1], registration_ms, registration,
             )  # fmt: skip
             result.views.append(record)
             self._check_gain(result.views)

@@ -45,7 +45,7 @@ def _last_line(text: str) -> str:
     return lines[-1][:200] if lines else ""
 
 
-def run_scene(seed: int, out: Path, views: int) -> dict:
+def run_scene(seed: int, out: Path, views: int, noise: str = "off") -> dict:
     """Generate, perceive and explore one scene; what went wrong goes into ``error``."""
     scene = generate(seed)
     path = out / "scenes" / f"scene_{seed}.xml"
@@ -73,7 +73,7 @@ def run_scene(seed: int, out: Path, views: int) -> dict:
     episode = out / "episodes" / f"scene_{seed}"
     e = _avs(
         ["explore", "--scene", str(path), "--strategy", "utility", "--fusion", "sg",
-         "--views", str(views), "--out", str(episode)],
+         "--views", str(views), "--noise", noise, "--registration", noise, "--out", str(episode)],
         1800,
     )  # fmt: skip
     metrics = episode / "metrics.json"
@@ -149,13 +149,18 @@ def main() -> None:
     parser.add_argument("--scenes", type=int, default=30)
     parser.add_argument("--first-seed", type=int, default=1000)
     parser.add_argument("--views", type=int, default=6)
+    parser.add_argument(
+        "--noise", choices=["on", "off"], default="off",
+        help="the robot's sensor models and view registration in the episodes (the README's "
+        "table: off)",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     print(" seed obj      perc.II  n  terminated    F1(1) F1(n) prec. rec.  II(n)", flush=True)
     rows = []
     for i, seed in enumerate(range(args.first_seed, args.first_seed + args.scenes)):
-        rows.append(run_scene(seed, args.out, args.views))
+        rows.append(run_scene(seed, args.out, args.views, args.noise))
         print(row_text(rows[-1]), f"  [{i + 1}/{args.scenes}, {rows[-1]['seconds']} s]", flush=True)
         (args.out / "generalization.json").write_text(
             json.dumps({"rows": rows, "summary": summary(rows)}, indent=2)

@@ -32,6 +32,18 @@ def _episode_arguments(p: argparse.ArgumentParser) -> None:
         default="volume",
         help="information gain: unknown voxels seen (volume) or Eq. 4.6's per-ray count",
     )
+    p.add_argument(
+        "--noise",
+        choices=["on", "off"],
+        default="on",
+        help="the robot's sensor models in the sim: depth noise, gyro noise and bias, encoders, "
+        "latency, odometry drift (off: the simulator's truth, depth noise alone)",
+    )
+    p.add_argument(
+        "--registration", choices=["on", "off"], default=None,
+        help="the scene memory registers each frame against the map first (thesis A.5; "
+        "default: as --noise)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="output directory")
 
 
@@ -100,7 +112,8 @@ def _config(args: argparse.Namespace, **kw):
 
     return EpisodeConfig(
         scene=args.scene, robot=args.robot, sampling=args.sampling, fusion=args.fusion,
-        views=args.views, voxel=args.voxel, ig_measure=args.ig_measure, out=args.out, **kw,
+        views=args.views, voxel=args.voxel, ig_measure=args.ig_measure, out=args.out,
+        noise=args.noise == "on", registration=(args.registration or args.noise) == "on", **kw,
     )  # fmt: skip
 
 
@@ -138,7 +151,8 @@ def summary(result: dict) -> None:
         f"{result['scene']}: {len(result['views'])} views, terminated by "
         f"{result['terminated_by']}; support F1 {last['support_f1']:.2f}, unknown voxels "
         f"{last['unknown_voxels']}, path cost {last['accumulated_path_cost']:.1f} s, "
-        f"InlierIndex {last['inlier_index']:.2f}"
+        f"InlierIndex {last['inlier_index']:.2f}, camera pose error "
+        f"{1e3 * last['pose_error_m']:.1f} mm {last['pose_error_deg']:.2f}°"
     )
 
 

@@ -124,11 +124,12 @@ def run_fusion(args: argparse.Namespace, progress=None):
     from avs import evaluation
     from avs.bounds import map_bounds
     from avs.commands.perceive import look_target
+    from services.common.poses import pose_difference
     from services.perception.pipeline import Perception, PerceptionConfig, observation
     from services.scene_memory.fusion import FusionConfig
     from services.scene_memory.memory import MemoryConfig, SceneMemory, registered_view
     from services.scene_memory.occupancy import OccupancyConfig
-    from services.scene_memory.registration import RegistrationConfig, pose_difference
+    from services.scene_memory.registration import RegistrationConfig
     from services.sim import capture, ground_truth
     from services.sim.render import CameraRenderer
     from services.sim.robots import ROBOTS

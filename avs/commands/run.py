@@ -24,6 +24,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--scene", default="tabletop_occluded")
     parser.add_argument("--views", type=positive_int, default=10)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--noise", choices=["on", "off"], default="on",
+        help="the robot's sensor models (odometry drift, gyro, encoders; the scene memory "
+        "registers the views) or the simulator's truth",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("runs/explore"))
     parser.set_defaults(func=_run)
 
@@ -32,7 +37,9 @@ def _run(args: argparse.Namespace) -> int:
     from avs.explore import EpisodeConfig
 
     args.out.mkdir(parents=True, exist_ok=True)
-    config = EpisodeConfig(scene=args.scene, views=args.views, seed=args.seed, out=args.out)
+    on = args.noise == "on"
+    config = EpisodeConfig(scene=args.scene, views=args.views, seed=args.seed, out=args.out,
+                           noise=on, registration=on)  # fmt: skip
     try:
         result = run_episode(config, "episode")
     except (RuntimeError, TimeoutError) as e:

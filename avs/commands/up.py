@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import signal
 import threading
 from pathlib import Path
@@ -78,6 +79,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"restart a service silent this long (default {HUNG_AFTER_S:.0f} s)",
     )
     parser.add_argument(
+        "--noise", choices=["on", "off"], default="on",
+        help="the sim's sensor models (gyro, encoders, latency, odometry drift) and the scene "
+        "memory's view registration, or the simulator's truth (AVS_SIM_SENSORS and "
+        "AVS_SCENE_MEMORY_REGISTRATION, when set, win)",
+    )  # fmt: skip
+    parser.add_argument(
         "--scale",
         type=parse_scale,
         default={},
@@ -98,8 +105,12 @@ def parse_scale(text: str) -> dict[str, int]:
 
 
 def service_env(args: argparse.Namespace) -> dict[str, str]:
-    """Settings the launcher hands to the services: the scene memory's data directory."""
-    return {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
+    """Settings the launcher hands to the services: the scene memory's data directory, and the
+    sensor models with view registration (``--noise``) unless the environment says otherwise."""
+    on = str(getattr(args, "noise", "on") == "on").lower()
+    noise = {k: on for k in ("AVS_SIM_SENSORS", "AVS_SCENE_MEMORY_REGISTRATION")
+             if k not in os.environ}  # fmt: skip
+    return noise | {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
 
 
 def chosen_services(names: str) -> list[ServiceInfo]:

@@ -24,6 +24,7 @@ import numpy as np
 import open3d as o3d
 
 from schemas import BoxModel, CameraIntrinsics, CylinderModel, PlaneModel, SceneObservation
+from services.common.poses import pose_difference
 
 
 @dataclass(frozen=True)
@@ -155,16 +156,6 @@ def register(
         return refuse("implausible", **scores)
     ms = (time.perf_counter() - t0) * 1e3
     return Registration(refined, correction, True, ms=ms, **scores)
-
-
-def pose_difference(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
-    """How far apart two poses are: the distance of their origins (m) and the angle of the
-    rotation between them (degrees)."""
-    cos = (np.trace(A[:3, :3].T @ B[:3, :3]) - 1) / 2
-    return (
-        float(np.linalg.norm(A[:3, 3] - B[:3, 3])),
-        math.degrees(math.acos(max(-1.0, min(1.0, float(cos))))),
-    )
 
 
 def moved(obs: SceneObservation, T: np.ndarray) -> SceneObservation:
