@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+from numba import njit
 
 from services.common.robots import camera_mount
 
@@ -24,8 +25,10 @@ EYE_JOINTS = frozenset({"eye_tilt", "eye_pan_left", "eye_pan_right"})
 BASE_JOINT = "Composite_base_x"  # x, y, yaw of the platform: pinocchio's name for the three
 
 
+@njit(cache=True)
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a × b of two 3-vectors (np.cross costs ten times as much on one pair)."""
+    """a × b of two 3-vectors (np.cross costs ten times as much on one pair; compiled, so the
+    gaze's compiled control step can call it)."""
     return np.array(
         [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
     )
@@ -80,6 +83,29 @@ class GazeKinematics:
         self.q = np.asarray(q, float)
         pin.computeJointJacobians(self.model, self.data, self.q)
         pin.updateFramePlacements(self.model, self.data)
+
+    def frames(self, cameras: Sequence[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For each camera, at the last ``update``: its body frame's placement (4 × 4), the
+        optical frame's mount in it (4 × 4) and the body frame's world-aligned Jacobian
+        (6 × nv), stacked: the compiled control step's inputs."""
+        k, nv = len(cameras), self.model.nv
+        placements, mounts, jacobians = (
+            np.empty((k, 4, 4)),
+            np.empty((k, 4, 4)),
+            np.empty((k, 6, nv)),
+        )
+        for i, c in enumerate(cameras):
+            frame, T = self.cameras[c]
+            placements[i] = self.data.oMf[frame].homogeneous
+            mounts[i] = T
+            jacobians[i] = pin.getFrameJacobian(self.model, self.data, frame,
+                                                pin.LOCAL_WORLD_ALIGNED)  # fmt: skip
+        return placements, mounts, jacobians
+
+    def imu_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """The IMU's placement (4 × 4) and its world-aligned Jacobian (6 × nv)."""
+        J = pin.getFrameJacobian(self.model, self.data, self.imu, pin.LOCAL_WORLD_ALIGNED)
+        return self.data.oMf[self.imu].homogeneous, J
 
     def camera_pose(self, camera: str) -> np.ndarray:
         """T_world_optical (x right, y down, z forward) of a camera."""

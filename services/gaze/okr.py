@@ -33,8 +33,13 @@ class RetinalSlip:
     """Feed frames of one camera with the forward model's pose of it at each frame's stamp."""
 
     def __init__(self, intrinsics: tuple[float, float, float, float], window: int = 60,
-                 min_tracks: int = 8) -> None:  # fmt: skip
+                 min_tracks: int = 8, margin: int = 160) -> None:  # fmt: skip
+        """Corners within ``window`` px of the target's image position are tracked; both
+        images are cut to that window plus ``margin`` px (the motion a frame may see there)
+        before corner detection and the flow's pyramids: the work is the window's, not the
+        image's (on a 640 × 480 camera, 0.6 of its pixels)."""
         self.K, self.window, self.min_tracks = intrinsics, window, min_tracks
+        self.margin = margin
         self.previous: _Frame | None = None
 
     def update(
@@ -51,13 +56,16 @@ class RetinalSlip:
         uv0 = project(prev.T_model, self.K, target)
         if not np.all(np.isfinite(uv0)) or not (0 <= uv0[0] < w and 0 <= uv0[1] < h):
             return None
-        u0, v0 = (max(0, int(uv0[0]) - self.window), max(0, int(uv0[1]) - self.window))
-        mask = np.zeros_like(grey)
-        mask[v0 : int(uv0[1]) + self.window, u0 : int(uv0[0]) + self.window] = 255
-        corners = cv2.goodFeaturesToTrack(prev.grey, 60, 0.01, 5, mask=mask)
+        u, v, r = int(uv0[0]), int(uv0[1]), self.window + self.margin
+        x0, y0, x1, y1 = max(0, u - r), max(0, v - r), min(w, u + r), min(h, v + r)
+        before, after = prev.grey[y0:y1, x0:x1], grey[y0:y1, x0:x1]
+        mask = np.zeros_like(before)
+        mask[max(0, v - self.window - y0) : v + self.window - y0,
+             max(0, u - self.window - x0) : u + self.window - x0] = 255  # fmt: skip
+        corners = cv2.goodFeaturesToTrack(before, 60, 0.01, 5, mask=mask)
         if corners is None or len(corners) < self.min_tracks:
             return None
-        moved, ok, _ = cv2.calcOpticalFlowPyrLK(prev.grey, grey, corners, None,
+        moved, ok, _ = cv2.calcOpticalFlowPyrLK(before, after, corners, None,
                                                 winSize=(21, 21), maxLevel=3)  # fmt: skip
         ok = ok.ravel() == 1
         if ok.sum() < self.min_tracks:

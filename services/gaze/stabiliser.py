@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 
 from services.gaze.kinematics import EYE_JOINTS, GazeKinematics, cross
-from services.gaze.sensing import GyroBias, GyroBiasConfig, predicted
+from services.gaze.sensing import GyroBias, GyroBiasConfig, bias_update, predicted
 
 
 @dataclass
@@ -75,6 +75,11 @@ class GazeStabiliser:
         self.offset = np.zeros(3)  # OKR: where the image says the fixation point is, minus x_des
         self.stamp: float | None = None
         self.bias = GyroBias(config.gyro_bias) if config.gyro_bias is not None else None
+        self.head_index = np.array(self.head, np.int64)
+        #: K, feed-forward on/off, VOR gain, and the solve's limit time, centring and damping
+        self.gains = np.array([config.gain, float(config.feedforward), config.vor_gain,
+                               config.limit_time, config.centring, config.damping])  # fmt: skip
+        self._no_bias = np.zeros(11)
 
     def observe_slip(self, camera: str, slip: np.ndarray, dt: float) -> None:
         """OKR: the slip (rad/s along ``camera``'s x and y) over the last ``dt`` s moves the held
@@ -108,41 +113,32 @@ class GazeStabiliser:
             self.offset *= np.exp(-max(0.0, stamp - self.stamp) / c.okr_leak)
         self.stamp = stamp
         self.last_target = np.asarray(x_des, float)
-        x_des = self.last_target + self.offset
+        target = self.last_target + self.offset
         twist = base_twist if c.odometry else (0.0, 0.0, 0.0)
         horizon = min(max(latency, 0.0), c.max_prediction)
         if horizon > 0.0:  # the joints and the platform where they are now
             position = predicted(position, velocity, horizon)
             base = (base[0] + twist[0] * horizon, base[1] + twist[1] * horizon,
                     base[2] + twist[2] * horizon)  # fmt: skip
-        q = kin.configuration(base, position)
-        kin.update(q)
+        kin.update(kin.configuration(base, position))
         v = kin.velocity(twist, velocity)
-        v_other = v.copy()
-        v_other[self.head] = 0.0
-        R_imu, p_imu, J_imu = kin.imu_rotation()
-        omega_u = np.zeros(3)
-        if gyro is not None:
-            gyro = np.asarray(gyro, float)
-            if self.bias is not None:  # still or not, as the forward model and the gyro say
-                self.bias.update(gyro, R_imu.T @ (J_imu @ v), stamp)
-                gyro = gyro - self.bias.bias
-            omega_u = R_imu @ gyro - J_imu @ v
-        rows, targets, errors = [], [], {}
-        for cam in c.cameras:
-            e, J, angle = kin.fixation(cam, x_des)
-            errors[cam] = angle
-            x_vee = np.asarray(x_des, float) - e
-            across = kin.camera_pose(cam)[:3, :2].T  # the camera's x and y: see lateral()
-            xd = c.gain * e
-            if c.feedforward:
-                xd = xd - J @ v_other
-            xd = xd - c.vor_gain * cross(omega_u, x_vee - p_imu)
-            rows.append(across @ J[:, self.head])
-            targets.append(across @ xd)
-        qh = np.array([position.get(n, 0.0) for n in c.joints])
-        qd = self.solve(np.vstack(rows), np.concatenate(targets), qh)
-        return GazeCommand(dict(zip(c.joints, qd.tolist(), strict=True)), errors, omega_u)
+        frames, mounts, jacobians = kin.frames(c.cameras)
+        M_imu, J_imu = kin.imu_frame()
+        bias = self.bias
+        qd, errors, omega_u = control_step(
+            frames, mounts, jacobians, M_imu, J_imu, v, self.head_index, target,
+            np.array([position.get(n, 0.0) for n in c.joints]),
+            np.zeros(3) if gyro is None else np.asarray(gyro, float), gyro is not None,
+            bias.state if bias is not None else self._no_bias, bias is not None,
+            0.0 if stamp is None else float(stamp), stamp is not None,
+            bias.params if bias is not None else self._no_bias, self.gains,
+            self.lower, self.upper, self.vmax, self.w_inv,
+        )  # fmt: skip
+        return GazeCommand(
+            dict(zip(c.joints, qd.tolist(), strict=True)),
+            dict(zip(c.cameras, errors.tolist(), strict=True)),
+            omega_u,
+        )
 
     def solve(self, J: np.ndarray, xd: np.ndarray, q: np.ndarray) -> np.ndarray:
         """q̇ = J#·ẋ + (I − J#·J)·q̇₀ with the weighted damped pseudo-inverse J# and q̇₀ pulling
@@ -200,3 +196,71 @@ def saturated_solve(J, xd, q, lower, upper, vmax, w_inv, limit_time, centring, d
         if not free.any():
             break
     return np.minimum(np.maximum(qd, lo), hi)
+
+
+@njit(cache=True)
+def _matvec(A, x):
+    """A·x by loops: small matrices, views of any layout (BLAS would cost more here)."""
+    out = np.zeros(A.shape[0])
+    for i in range(A.shape[0]):
+        for j in range(A.shape[1]):
+            out[i] += A[i, j] * x[j]
+    return out
+
+
+@njit(cache=True)
+def control_step(frames, mounts, jacobians, M_imu, J_imu, v, head, x_des, q_head, gyro,
+                 has_gyro, bias_state, has_bias, stamp, has_stamp, bias_params, gains, lower,
+                 upper, vmax, w_inv):  # fmt: skip
+    """One control step after the forward kinematics (``GazeStabiliser.command``), compiled:
+    per camera c, with its body frame's placement ``frames[c]`` and world-aligned Jacobian
+    ``jacobians[c]`` (6 × nv), the optical frame T = frames[c]·mounts[c]; the IMU's placement
+    and Jacobian. Returns (q̇ of the head joints, the gaze angle error per camera, ω_u)."""
+    gain, feedforward, vor_gain = gains[0], gains[1] > 0, gains[2]
+    R_imu, p_imu = M_imu[:3, :3], M_imu[:3, 3].copy()
+    w_model = _matvec(J_imu[3:], v)  # the forward model's angular velocity of the IMU (world)
+    omega_u = np.zeros(3)
+    if has_gyro:
+        g = gyro.copy()
+        if has_bias:  # still or not, as the forward model and the gyro say
+            bias_update(bias_state, g, _matvec(R_imu.T, w_model), stamp, has_stamp, bias_params)
+            g = g - bias_state[0:3]
+        omega_u = _matvec(R_imu, g) - w_model
+    v_other = v.copy()
+    for j in head:
+        v_other[j] = 0.0
+    k, n, nv = frames.shape[0], head.shape[0], v.shape[0]
+    rows = np.empty((2 * k, n))
+    targets = np.empty(2 * k)
+    errors = np.empty(k)
+    for c in range(k):
+        T = np.zeros((4, 4))
+        for i in range(4):
+            for j in range(4):
+                for m in range(4):
+                    T[i, j] += frames[c, i, m] * mounts[c, m, j]
+        p, z = T[:3, 3].copy(), T[:3, 2].copy()
+        to = x_des - p
+        d = np.sqrt(np.sum(to**2))
+        x_vee = p + d * z
+        errors[c] = np.arctan2(np.sqrt(np.sum(cross(z, to) ** 2)), np.sum(z * to))
+        e = to - d * z
+        # the world velocity of x_vee fixed to the camera's body: J_lin − [x_vee − o]× J_ang
+        J6 = jacobians[c]
+        lever = x_vee - frames[c, :3, 3]
+        J = np.empty((3, nv))
+        for col in range(nv):
+            J[:, col] = J6[:3, col] - cross(lever, J6[3:, col].copy())
+        xd = gain * e
+        if feedforward:
+            xd = xd - _matvec(J, v_other)
+        xd = xd - vor_gain * cross(omega_u, x_vee - p_imu)
+        for i in range(2):  # across the optical axis only: the camera's x and y (lateral())
+            for j in range(n):
+                rows[2 * c + i, j] = (
+                    T[0, i] * J[0, head[j]] + T[1, i] * J[1, head[j]] + (T[2, i] * J[2, head[j]])
+                )
+            targets[2 * c + i] = T[0, i] * xd[0] + T[1, i] * xd[1] + T[2, i] * xd[2]
+    qd = saturated_solve(rows, targets, q_head, lower, upper, vmax, w_inv, gains[3],
+                         gains[4], gains[5])  # fmt: skip
+    return qd, errors, omega_u
