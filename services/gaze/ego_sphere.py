@@ -39,7 +39,7 @@ class EgoSphere:
         n: int = 40_000,
         expiry: float = 5.0,
         noise: float = 1e-3,
-        inhibition_deg: float = 8.0,
+        inhibition_deg: float = 10.0,
         inhibition_s: float = 3.0,
         seed: int = 0,
     ) -> None:
@@ -106,13 +106,19 @@ class EgoSphere:
         total += self.noise * self.rng.random(n)
         return np.where(self.reachable, total, 0.0)
 
-    def select(self, now: float, saliency: np.ndarray | None = None) -> int:
+    def select(
+        self, now: float, saliency: np.ndarray | None = None, floor: float | None = None
+    ) -> int:
         """The winner: the reachable, not inhibited point of the largest saliency (−1 if every
-        point is unreachable or inhibited); ``saliency``: this instant's, if computed."""
+        point is unreachable or inhibited, or with ``floor``, if the winner's saliency is not
+        above it: noise alone does not call a saccade); ``saliency``: this instant's, if
+        computed."""
         s = (self.saliency(now) if saliency is None else saliency).copy()
         s[(self.inhibited_until > now) | ~self.reachable] = -np.inf
         j = int(np.argmax(s))
-        return j if np.isfinite(s[j]) else -1
+        if not np.isfinite(s[j]) or (floor is not None and s[j] <= floor):
+            return -1
+        return j
 
     def distance(self, j: int, now: float) -> float:
         """How far the salient thing at point j is: from the freshest source that set it."""
@@ -123,7 +129,9 @@ class EgoSphere:
         return dist
 
     def inhibit(self, j: int, now: float) -> None:
-        """Inhibition of return: the winner's neighbourhood cannot win for a while."""
+        """Inhibition of return: the winner's neighbourhood cannot win for a while. (Its radius,
+        10° by default, covers a value's spread in ``add``, 3σ of 3°: else the tails of the
+        object just fixated would win next, and hold the gaze circling it.)"""
         self.inhibited_until[self.near(self.points[j], self.inhibition_deg)] = (
             now + self.inhibition_s
         )

@@ -26,10 +26,12 @@ from schemas import (
     HeadCommand,
     ImuSample,
     JointState,
+    PoseCorrection,
     RgbdFrame,
     SceneObservation,
 )
 from services.common.node import Node
+from services.common.poses import corrected_base
 from services.common.robots import JOINT_SPEED, robot_mjcf
 from services.gaze.config import GazeSettings
 from services.gaze.ego_sphere import EgoSphere
@@ -56,6 +58,12 @@ def localisation_covariance(depth: float) -> np.ndarray:
     sz = 0.0012 + 0.0019 * (depth - 0.4) ** 2 + 0.01
     return np.diag([0.01**2, 0.01**2, sz**2])
 
+
+#: an ego-sphere winner must be more salient than this (ten times its noise) to call a saccade
+SALIENCY_FLOOR = 1e-2
+
+#: the control step's gauges are updated every this many steps
+GAUGE_EVERY = 50
 
 #: the OKR measures slip only while fixating: the gaze angle error between two frames stayed
 #: below this (rad)
@@ -97,6 +105,8 @@ class GazeNode:
         self.joint_history: deque[tuple[float, JointState]] = deque(maxlen=200)
         self.gyro_history: deque[tuple[float, np.ndarray]] = deque(maxlen=100)
         self.base: BasePose | None = None
+        #: memory/pose_correction: the registered world from the odometry's (None: not yet)
+        self.T_world_odom: np.ndarray | None = None
         self.imu_wall = -math.inf  # wall time of the last IMU sample, for the watchdog
         self.targets: dict[str, GazeTarget] = {}  # the freshest per source
         self.targets_wall: dict[str, float] = {}
@@ -104,6 +114,7 @@ class GazeNode:
         self.error = math.inf  # the largest gaze angle error (rad) since the last OKR frame
         self.objects: list[ObjectBelief] = []
         self.chosen: np.ndarray | None = None  # ego-sphere winner (world point)
+        self.previous: np.ndarray | None = None  # the last winner, held while nothing wins
         self.chosen_at = -math.inf
         self.holding: str = ""  # why the head is held, "" while controlling
         node.metrics.gauge("holding", 0)
@@ -118,6 +129,7 @@ class GazeNode:
         self.out_ego = node.publisher(k.egosphere())
         node.subscribe(k.joints(), JointState, self.on_joints)
         node.subscribe(k.base_state(), BasePose, self.on_base)
+        node.subscribe(k.pose_correction(), PoseCorrection, self.on_correction)
         node.subscribe(k.gaze_target(), GazeTarget, self.on_target)
         node.subscribe(k.observation(), SceneObservation, self.on_observation)  # each one counts
         # the newest IMU sample only: after a stall the control step acts on the present, not
@@ -141,6 +153,22 @@ class GazeNode:
     def on_base(self, msg: BasePose) -> None:
         self.base = msg
 
+    def on_correction(self, msg: PoseCorrection) -> None:
+        """View registration's correction of the odometry (thesis A.5): targets are world
+        points, so the platform is placed where the registered map has it, not where its
+        drifting odometry does."""
+        self.T_world_odom = np.asarray(msg.T_world_odom, float)
+
+    def _registered(self, T: np.ndarray) -> np.ndarray:
+        """A pose or point the odometry placed (a frame's camera, a primitive from it) in the
+        registered world."""
+        return T if self.T_world_odom is None else self.T_world_odom @ T
+
+    def _base(self, base: BasePose) -> tuple[tuple[float, float, float], tuple[float, ...]]:
+        """The platform's pose and world velocity, corrected by view registration."""
+        return corrected_base(self.T_world_odom, (base.x, base.y, base.yaw),
+                              (base.v_x, base.v_y, base.v_yaw))  # fmt: skip
+
     def on_target(self, msg: GazeTarget) -> None:
         with self.lock:
             self.targets[msg.source] = msg
@@ -149,12 +177,12 @@ class GazeNode:
     def on_observation(self, obs: SceneObservation) -> None:
         """Fuse each small primitive's centre into the nearest object belief (within 10 cm),
         or start one; each belief's saliency goes on the ego-sphere at its direction."""
-        cam = np.asarray(obs.T_world_camera)
+        cam = self._registered(np.asarray(obs.T_world_camera, float))
         with self.lock:
             for p in obs.primitives:
                 if float(np.max(p.obb.extent)) > 0.4:  # tables, walls, floors: not objects
                     continue
-                centre = np.asarray(p.obb.center, float)
+                centre = self._registered(np.append(np.asarray(p.obb.center, float), 1.0))[:3]
                 depth = float(np.linalg.norm(centre - cam[:3, 3]))
                 R = localisation_covariance(depth)
                 near = [b for b in self.objects if np.linalg.norm(b.mean - centre) < 0.1]
@@ -186,7 +214,7 @@ class GazeNode:
             return
         kin = self.okr_kin
         joints = dict(zip(js.names, js.position.tolist(), strict=True))
-        kin.update(kin.configuration((base.x, base.y, base.yaw), joints))
+        kin.update(kin.configuration(self._base(base)[0], joints))
         if self.slip is None:
             K = frame.intrinsics
             self.slip = RetinalSlip((K.fx, K.fy, K.cx, K.cy))
@@ -212,14 +240,14 @@ class GazeNode:
             return
         K = frame.intrinsics
         uv = np.array([(u, v) for u, v, _ in blobs])
-        rays = pixel_rays(uv, (K.fx, K.fy, K.cx, K.cy), frame.T_world_camera)
-        R = platform_rotation(base.yaw)
+        T_cam = self._registered(np.asarray(frame.T_world_camera, float))
+        rays = pixel_rays(uv, (K.fx, K.fy, K.cx, K.cy), T_cam)
+        R = platform_rotation(self._base(base)[0][2])
         head = self._head_position()
         directions = []
         for (u, v), ray in zip(uv, rays, strict=True):
             z = float(frame.depth[int(v), int(u)]) if frame.depth is not None else 0.0
-            point = frame.T_world_camera[:3, 3] + ray * (z / ray @ frame.T_world_camera[:3, 2]
-                                                          if z > 0 else 1.5)  # fmt: skip
+            point = T_cam[:3, 3] + ray * (z / ray @ T_cam[:3, 2] if z > 0 else 1.5)
             directions.append(point - head)
         with self.lock:
             for to in directions:
@@ -248,11 +276,12 @@ class GazeNode:
             self.hold("no fixation target")
             return
         names = js.names
+        pose, twist = self._base(base)
         with self.stab_lock:
             cmd = self.stab.command(
                 target,
-                (base.x, base.y, base.yaw),
-                (base.v_x, base.v_y, base.v_yaw),
+                pose,
+                twist,
                 dict(zip(names, js.position.tolist(), strict=True)),
                 dict(zip(names, js.velocity.tolist(), strict=True)),
                 # the gyro of the joint state's instant, for the VOR's reafference
@@ -286,12 +315,13 @@ class GazeNode:
                 self.holding = ""
                 self.node.metrics.gauge("holding", 0)
         self.steps += 1
-        m = self.node.metrics
-        m.gauge("fixation_error_deg", math.degrees(max(cmd.error_rad.values())))
-        m.gauge("unpredicted_rad_s", float(np.linalg.norm(cmd.unpredicted)))
-        m.gauge("control_steps", self.steps)
-        if self.stab.bias is not None:
-            m.gauge("gyro_bias_deg_s", math.degrees(float(np.linalg.norm(self.stab.bias.bias))))
+        if self.steps % GAUGE_EVERY == 1:  # the metrics at 20 Hz, not at the loop's 1 kHz
+            m = self.node.metrics
+            m.gauge("fixation_error_deg", math.degrees(max(cmd.error_rad.values())))
+            m.gauge("unpredicted_rad_s", math.hypot(*cmd.unpredicted))
+            m.gauge("control_steps", self.steps)
+            if self.stab.bias is not None:
+                m.gauge("gyro_bias_deg_s", math.degrees(math.hypot(*self.stab.bias.bias)))
 
     def _seq(self) -> int:
         self.seq += 1
@@ -309,14 +339,19 @@ class GazeNode:
                 best = max(fresh, key=lambda t: (t.priority, t.source == "manual", t.stamp))
                 return np.asarray(best.point, float)
             if now - self.chosen_at >= self.s.select_every:
+                # nothing salient beyond the noise (all of it fixated and inhibited): the gaze
+                # stays where it is rather than wander
                 self.chosen = self.select(stamp, base)
+                if self.chosen is None:
+                    self.chosen = self.previous
+                self.previous = self.chosen
                 self.chosen_at = now
             return self.chosen
 
     def select(self, stamp: float, base: BasePose) -> np.ndarray | None:
         """Put the objects' saliencies on the ego-sphere, take the winner, inhibit it."""
         head = self._head_position()
-        R = platform_rotation(base.yaw)
+        R = platform_rotation(self._base(base)[0][2])
         self.ego.source("object").values[:] = 0.0  # the beliefs as they are now, drawn anew
         for b in self.objects:
             b.predict(stamp)
@@ -324,8 +359,8 @@ class GazeNode:
                 to = b.mean - head
                 self.ego.add("object", R.T @ to, b.saliency, stamp,
                              distance=float(np.linalg.norm(to)))  # fmt: skip
-        j = self.ego.select(stamp)
-        if j < 0 or not self.ego.sources:
+        j = self.ego.select(stamp, floor=SALIENCY_FLOOR)
+        if j < 0:
             return None
         self.ego.inhibit(j, stamp)
         return head + R @ self.ego.points[j] * self.ego.distance(j, stamp)

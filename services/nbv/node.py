@@ -21,11 +21,13 @@ from schemas import (
     NextBestView,
     OccupancySlice,
     PlanRequest,
+    PoseCorrection,
     SceneModel,
     ViewCandidates,
 )
 from services.common.membership import Members
 from services.common.node import Node
+from services.common.poses import corrected_base
 from services.common.robots import robot_mjcf
 from services.nbv.config import NbvSettings
 from services.nbv.path_cost import path_cost
@@ -66,8 +68,10 @@ class NbvNode:
         )
         self.lock = threading.Lock()
         self.base: BasePose | None = None
+        self.T_world_odom: np.ndarray | None = None  # memory/pose_correction
         k = node.keys
         node.subscribe(k.base_state(), BasePose, self.on_base, latest_only=True)
+        node.subscribe(k.pose_correction(), PoseCorrection, self.on_correction)
         self.out_candidates = node.publisher(k.candidates())
         self.out_next = node.publisher(k.next_view())
         self.out_base = node.publisher(k.cmd_base())
@@ -133,13 +137,17 @@ class NbvNode:
     def on_base(self, pose: BasePose) -> None:
         self.base = pose
 
+    def on_correction(self, msg: PoseCorrection) -> None:
+        self.T_world_odom = np.asarray(msg.T_world_odom, float)
+
     def _current(self) -> tuple[float, float, float]:
         deadline = time.monotonic() + 10
         while self.base is None and time.monotonic() < deadline:
             time.sleep(0.01)
         if self.base is None:
             raise RuntimeError("no state/base received: is the sim running?")
-        return (self.base.x, self.base.y, self.base.yaw)
+        b = self.base  # where the registered map has the platform (thesis A.5)
+        return corrected_base(self.T_world_odom, (b.x, b.y, b.yaw), (0.0, 0.0, 0.0))[0]
 
     def _map(self) -> OccupancySlice:
         """The occupancy map from the scene memory; asked again for a while if none answers

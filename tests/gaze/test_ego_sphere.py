@@ -69,6 +69,25 @@ def test_inhibition_of_return_moves_the_winner_on_and_wears_off():
     assert ego.select(3.6) == first  # 3 s later the first may win again
 
 
+def test_an_inhibited_object_leaves_no_tail_to_circle_and_noise_calls_no_saccade():
+    """One salient object: once it is fixated and inhibited, its own spread (a Gaussian of 3°
+    out to 9°) cannot win in its place, which held the gaze circling 5° off the box in the
+    gaze node's test; with a floor above the noise nothing wins (the gaze stays)."""
+    ego = EgoSphere(noise=1e-3)
+    ego.add("object", AHEAD, 1.0, stamp=0.0)
+    first = ego.select(0.5, floor=1e-2)
+    assert ego.points[first] @ (AHEAD / np.linalg.norm(AHEAD)) > np.cos(np.radians(2))
+    ego.inhibit(first, 0.5)
+    s = ego.saliency(1.0)
+    s[ego.inhibited_until > 1.0] = 0.0
+    assert s.max() < 2e-3  # only noise left outside the inhibited disk
+    assert ego.select(1.0, floor=1e-2) == -1
+    narrow = EgoSphere(noise=1e-3, inhibition_deg=8.0)  # a disk narrower than the spread
+    narrow.add("object", AHEAD, 1.0, stamp=0.0)
+    narrow.inhibit(narrow.select(0.5), 0.5)
+    assert narrow.select(1.0, floor=1e-2) >= 0  # the tail wins: what the default prevents
+
+
 def test_kalman_fusion_shrinks_sigma_until_the_task_acuity_makes_saliency_zero():
     rng = np.random.default_rng(0)
     truth = np.array([1.5, 0.15, 0.86])
