@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 from pydantic import Field
 
@@ -20,12 +20,20 @@ class TimingSummary(Model):
 
 
 class ServiceMetrics(Stamped):
-    """Answer of ``metrics/<service>/<instance>``: counters since start and handler timings."""
+    """Answer of ``metrics/<service>/<instance>``: counters since start and handler timings.
+    v2: ``messages_valid``."""
+
+    VERSION: ClassVar[int] = 2
 
     service: str
     instance: str
     uptime_s: float = Field(ge=0)
     messages_in: dict[str, int] = Field(default_factory=dict, description="per key expression")
+    messages_valid: dict[str, int] = Field(
+        default_factory=dict,
+        description="per key expression: the inputs that decoded and validated (garbage, wrong "
+        "schemas and versions are in messages_in only)",
+    )
     messages_out: dict[str, int] = Field(default_factory=dict, description="per key expression")
     dropped: dict[str, int] = Field(default_factory=dict, description="per reason")
     processing_ms: dict[str, TimingSummary] = Field(default_factory=dict, description="per handler")

@@ -4,8 +4,10 @@ queries, latest-only inputs."""
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -22,6 +24,7 @@ from schemas import (
     encode,
 )
 from services.common import Node, RemoteError, ServiceSettings
+from services.common.realtime import BACKGROUND
 from tests.conftest import liveliness_tokens, matched_publisher, wait_for
 
 
@@ -76,6 +79,7 @@ def test_invalid_inputs_are_dropped_counted_and_logged_once(node, client, caplog
     warnings = [r for r in caplog.records if "dropping message" in r.getMessage()]
     assert len(warnings) == 4  # once per reason
     assert node.metrics.snapshot().messages_in == {keys.imu(): 10}
+    assert node.metrics.snapshot().messages_valid == {keys.imu(): 5}  # the good ones only
 
 
 def test_a_raising_handler_is_counted_and_the_node_goes_on(node, client):
@@ -192,6 +196,24 @@ def test_garbage_cannot_evict_the_newest_valid_sample(node, client):
     assert sum(v for k, v in dropped.items() if k != "superseded") == 6, dropped
     assert dropped.get("superseded") == 2, dropped  # samples 1 and 2
     assert seen == [0, 3]
+
+
+def test_an_input_thread_runs_at_the_nice_it_was_given(node, client):
+    """``nice``: the input's thread at ordinary scheduling and that nice, whatever its creator's
+    (the scene memory's map work at realtime.BACKGROUND, after perception and rendering)."""
+    keys = Keys()
+    nices: list[int] = []
+
+    def handler(_m: ImuSample) -> None:
+        tid = threading.get_native_id()
+        stat = Path(f"/proc/self/task/{tid}/stat").read_text().rsplit(")", 1)[1].split()
+        nices.append(int(stat[16]))  # field 19 of stat: nice
+
+    node.subscribe(keys.imu(), ImuSample, handler, latest_only=True, nice=BACKGROUND)
+    publisher = matched_publisher(client, keys.imu())
+    publisher.put(encode(imu(0)))
+    wait_for(lambda: nices, 10, "the sample")
+    assert nices == [BACKGROUND] and os.getpriority(os.PRIO_PROCESS, 0) == 0  # only that thread
 
 
 def test_a_queued_input_runs_off_the_zenoh_callback_in_order(node, client):

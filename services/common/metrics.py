@@ -21,6 +21,7 @@ class Metrics:
         self.started = time.monotonic()
         self._lock = threading.Lock()
         self._in: dict[str, int] = defaultdict(int)
+        self._valid: dict[str, int] = defaultdict(int)
         self._out: dict[str, int] = defaultdict(int)
         self._dropped: dict[str, int] = defaultdict(int)
         self._timings: dict[str, deque[float]] = defaultdict(lambda: deque(maxlen=WINDOW))
@@ -30,6 +31,11 @@ class Metrics:
     def count_in(self, key: str) -> None:
         with self._lock:
             self._in[key] += 1
+
+    def count_valid(self, key: str) -> None:
+        """An input on ``key`` that decoded and validated."""
+        with self._lock:
+            self._valid[key] += 1
 
     def count_out(self, key: str) -> None:
         with self._lock:
@@ -85,6 +91,7 @@ class Metrics:
                 instance=self.instance,
                 uptime_s=time.monotonic() - self.started,
                 messages_in=dict(self._in),
+                messages_valid=dict(self._valid),
                 messages_out=dict(self._out),
                 dropped=dict(self._dropped),
                 processing_ms={

@@ -23,6 +23,7 @@ from schemas.keys import Keys, check_chunk
 from schemas.runtime import QueryError
 from services.common.config import ServiceSettings
 from services.common.metrics import Metrics
+from services.common.realtime import ordinary
 from services.common.transport import open_session, publisher_options
 
 M = TypeVar("M", bound=Message)
@@ -103,10 +104,12 @@ class Node:
 
     def _decode(self, key: str, payload: bytes, expect: type[M]) -> M | None:
         try:
-            return decode(payload, expect)
+            message = decode(payload, expect)
         except CodecError as e:
             self.drop(f"{e.kind}", key, str(e))
             return None
+        self.metrics.count_valid(key)
+        return message
 
     def drop(self, reason: str, key: str, detail: str) -> None:
         """Count a dropped input by ``reason``; log the first of each reason."""
@@ -140,6 +143,7 @@ class Node:
         name: str | None = None,
         with_key: bool = False,
         accept: Callable[[bytes], bool] | None = None,
+        nice: int | None = None,
     ) -> None:
         """Call ``handler`` with every valid ``message_type`` published on ``key`` (and the
         sample's key, with ``with_key``).
@@ -150,7 +154,10 @@ class Node:
         own and always gets the newest *valid* sample: up to ``LATEST_RING`` waiting samples
         are looked at newest first, so garbage published on the key cannot evict a good one,
         and the older ones are counted as ``superseded``. ``accept`` sees the raw payload first
-        (e.g. ``codec.peek``): a sample it refuses is not decoded at all.
+        (e.g. ``codec.peek``): a sample it refuses is not decoded at all. ``nice`` (with a
+        thread of its own): that thread at ordinary scheduling and this nice value, whatever its
+        process's (e.g. image work beside a real-time loop, or deferrable work at
+        ``realtime.BACKGROUND``).
         """
         name = name or getattr(handler, "__name__", key)
 
@@ -188,6 +195,8 @@ class Node:
                     return
 
         def pump() -> None:
+            if nice is not None:
+                ordinary(nice)
             while not self._stop.is_set():
                 try:
                     sample = subscriber.handler.recv()

@@ -12,8 +12,10 @@ than they won, on the soak benchmark 650-820 Hz of IMU against 910 Hz.)
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import threading
 from pathlib import Path
 
 log = logging.getLogger("avs.realtime")
@@ -21,6 +23,9 @@ log = logging.getLogger("avs.realtime")
 #: SCHED_RR priority (1-99): above every ordinary thread, below the kernel's own
 RR_PRIORITY = 10
 NICE = -10
+#: the nice of deferrable work (map integration, fusion): it yields to perception and rendering,
+#: which yield to the real-time loops
+BACKGROUND = 10
 
 
 def threads() -> list[int]:
@@ -57,11 +62,12 @@ def prioritise(what: str, main_thread: bool = True) -> str:
     return granted
 
 
-def ordinary() -> None:
+def ordinary(nice: int = 0) -> None:
     """The calling thread back to ordinary scheduling (e.g. a renderer in a real-time
-    process): it then competes like any other."""
-    try:
+    process) at ``nice``: it then competes like any other (nice 0), or after the others
+    (``BACKGROUND``). Raising one's own nice needs no privilege; lowering it does, and is
+    skipped where refused."""
+    with contextlib.suppress(AttributeError, PermissionError, OSError):
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-        os.setpriority(os.PRIO_PROCESS, 0, 0)
-    except (AttributeError, PermissionError, OSError):
-        pass
+    with contextlib.suppress(AttributeError, PermissionError, OSError):
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)

@@ -30,6 +30,7 @@ from schemas import (
 )
 from services.common.frames import usable_depth_frame
 from services.common.node import Node
+from services.common.realtime import BACKGROUND
 from services.common.standby import wait_for_turn
 from services.scene_memory.config import SceneMemorySettings
 from services.scene_memory.fusion import FusionConfig
@@ -85,9 +86,13 @@ class SceneMemoryNode:
         )
         self.obs_camera = REGISTERED_CAMERA if settings.fusion != "sg" else settings.camera
         # the work runs on the inputs' own threads, never in Zenoh's callbacks: observations
-        # in order (a few waiting at most), depth frames newest first (one at a time)
-        node.subscribe(k.observation(), SceneObservation, self.on_observation, queue=OBS_QUEUE)
-        node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame, latest_only=True)
+        # in order (a few waiting at most), depth frames newest first (one at a time); both at
+        # the background's nice, after perception and rendering (a keyframe skipped costs a
+        # little map detail, an observation or a frame late costs the whole pipeline's rate)
+        node.subscribe(k.observation(), SceneObservation, self.on_observation, queue=OBS_QUEUE,
+                       nice=BACKGROUND)  # fmt: skip
+        node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame, latest_only=True,
+                       nice=BACKGROUND)  # fmt: skip
         node.serve(k.scene(), lambda _r: self.scene())
         node.serve(k.occupancy("stats"), self.on_stats, BoxQuery)
         node.serve(k.occupancy("slice"), self.on_slice, BoxQuery)
