@@ -174,3 +174,16 @@ def test_a_wrong_password_is_one_line_naming_the_endpoint_and_user(secured_route
     assert secured_router in line and "'observer'" in line, line
     assert took < 5 + 3, took
     assert "observer" in acl.identities()
+
+
+def test_avs_up_services_join_as_peers_and_compose_wiring_stays_clients():
+    """``peers``: each service a Zenoh peer of the router, listening on the router's host on a
+    port the OS picks (the services link to each other directly); without it, clients."""
+    endpoint = "tcp/127.0.0.1:17447"
+    peer = Supervisor([BY_NAME["nbv"]], endpoint, peers=True)
+    env = peer.child_env(peer.children[0])
+    assert (env["AVS_MODE"], env["AVS_CONNECT"], env["AVS_LISTEN"]) == (
+        "peer", endpoint, "tcp/127.0.0.1:0")  # fmt: skip
+    client = Supervisor([BY_NAME["nbv"]], endpoint)
+    env = client.child_env(client.children[0])
+    assert env["AVS_MODE"] == "client"

@@ -1,9 +1,11 @@
 """``avs up``: the Zenoh router on loopback plus every implemented service as a local process.
 
-The services connect to the router as clients with multicast off — the same commands and the
-same wiring as compose.yaml, without docker. Ctrl-C (or SIGTERM) stops them all. A service that
-exits, or hangs (its metrics unanswered for --hung-after seconds), is restarted after a back-off
-that doubles with every quick failure (0.5 s … 30 s); ``avs status`` names any that is down.
+The services join the router's Zenoh network as peers with multicast off, linked directly to
+each other over loopback (``--clients``: as clients, every message through the router, the
+wiring of compose.yaml) — the same commands as compose.yaml, without docker. Ctrl-C (or
+SIGTERM) stops them all. A service that exits, or hangs (its metrics unanswered for
+--hung-after seconds), is restarted after a back-off that doubles with every quick failure
+(0.5 s … 30 s); ``avs status`` names any that is down.
 The scene memory runs with a hot standby (``--no-standby``: without), which takes over within
 2 s when the active one dies; the router's threads, the sim's physics and the gaze run with
 real-time scheduling where the OS permits it.
@@ -85,6 +87,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "AVS_SCENE_MEMORY_REGISTRATION, when set, win)",
     )  # fmt: skip
     parser.add_argument(
+        "--clients", action="store_true",
+        help="services connect as Zenoh clients, every message through the router (the "
+        "default: as peers, linked directly to each other on loopback)",
+    )  # fmt: skip
+    parser.add_argument(
         "--scale",
         type=parse_scale,
         default={},
@@ -136,7 +143,7 @@ def _up(args: argparse.Namespace) -> int:
         supervisor = Supervisor(
             services, args.listen, args.robot, env=service_env(args),
             restart=not args.no_restart, scale=scale, hung_after=args.hung_after,
-            realtime=True,
+            realtime=True, peers=not args.clients,
         )  # fmt: skip
     except ValueError as e:
         raise SystemExit(f"avs: {e}") from None
