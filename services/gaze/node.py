@@ -104,6 +104,7 @@ class GazeNode:
         # (stamp, sample) in arrival order: joint states for OKR (1 s at 200 Hz), gyro for the VOR
         self.joint_history: deque[tuple[float, JointState]] = deque(maxlen=200)
         self.gyro_history: deque[tuple[float, np.ndarray]] = deque(maxlen=100)
+        self.base_history: deque[tuple[float, BasePose]] = deque(maxlen=200)  # 1 s at 200 Hz
         self.base: BasePose | None = None
         #: memory/pose_correction: the registered world from the odometry's (None: not yet)
         self.T_world_odom: np.ndarray | None = None
@@ -152,6 +153,7 @@ class GazeNode:
 
     def on_base(self, msg: BasePose) -> None:
         self.base = msg
+        self.base_history.append((msg.stamp, msg))
 
     def on_correction(self, msg: PoseCorrection) -> None:
         """View registration's correction of the odometry (thesis A.5): targets are world
@@ -209,7 +211,9 @@ class GazeNode:
         history = list(self.joint_history)
         period = (history[-1][0] - history[0][0]) / (len(history) - 1) if len(history) > 1 else 0
         js = nearest(history, frame.stamp, 0.6 * period)
-        if js is None:  # no joint state of the frame's time: no slip
+        # and the platform where it was then, not where it is now (the frame is 40 ms old)
+        base = nearest(list(self.base_history), frame.stamp, 0.6 * period) if period else base
+        if js is None or base is None:  # no state of the frame's time: no slip
             self.slip_stamp = None
             return
         kin = self.okr_kin
@@ -218,7 +222,8 @@ class GazeNode:
         if self.slip is None:
             K = frame.intrinsics
             self.slip = RetinalSlip((K.fx, K.fy, K.cx, K.cy))
-        slip = self.slip.update(frame.rgb, kin.camera_pose(self.okr_camera), frame.stamp, target)
+        slip = self.slip.update(frame.rgb, kin.camera_pose(self.okr_camera), frame.stamp, target,
+                                frame.depth)  # fmt: skip
         last, self.slip_stamp = self.slip_stamp, frame.stamp
         if slip is not None and last is not None and frame.stamp - last < 0.5:
             if float(np.abs(slip).max()) > 1.0:  # > 57°/s of unexplained drift: a bad track

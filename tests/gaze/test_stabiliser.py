@@ -240,6 +240,43 @@ def test_retinal_slip_is_the_image_motion_the_model_did_not_predict():
     assert slip.update(img, turn, 0.2, target) == pytest.approx([0, 0], abs=2e-3)
 
 
+def test_retinal_slip_predicts_each_point_at_its_own_depth_so_parallax_is_no_slip():
+    """A camera translating sideways 2 cm in 0.1 s past a near surface (1 m, most of the
+    tracked window) and a far one (3 m), fixating a point between them at 2 m: the forward
+    model knows the motion exactly, so nothing slips. Predicted at the target's depth, the
+    near surface's larger image motion (parallax) reads as slip; at each point's measured depth
+    it does not."""
+    rng = np.random.default_rng(1)
+    w, h, fx, t = 320, 240, 300.0, 0.02
+    K = (fx, fx, (w - 1) / 2, (h - 1) / 2)
+    near, far = (
+        cv2.resize(rng.integers(0, 255, (h // 4, w // 4 + 8, 3), dtype=np.uint8), (w + 32, h),
+                   interpolation=cv2.INTER_CUBIC)
+        for _ in range(2)
+    )  # fmt: skip
+    split = 230  # columns left of it are the near surface: most of the window around the centre
+
+    def image(shift_near: int, shift_far: int) -> np.ndarray:
+        out = np.empty((h, w, 3), np.uint8)
+        out[:, :split] = near[:, 16 + shift_near : 16 + shift_near + split]
+        out[:, split:] = far[:, 16 + shift_far + split : 16 + shift_far + w]
+        return out
+
+    depth = np.full((h, w), 3.0, np.float32)
+    depth[:, :split] = 1.0
+    T0, T1 = np.eye(4), np.eye(4)
+    T1[0, 3] = t  # 2 cm to the right: a point at depth Z moves fx·t/Z px to the left
+    target = np.array([0.0, 0.0, 2.0])
+    shifted = image(round(fx * t / 1.0), round(fx * t / 3.0))  # 6 px and 2 px
+    slips = {}
+    for with_depth in (True, False):
+        slip = RetinalSlip(K)
+        slip.update(image(0, 0), T0, 0.0, target, depth if with_depth else None)
+        slips[with_depth] = slip.update(shifted, T1, 0.1, target, depth if with_depth else None)
+    assert np.abs(slips[True]).max() < 0.01, slips  # rad/s: < 1 px over the 0.1 s
+    assert abs(slips[False][0]) > 0.05, slips  # 3 px of parallax read as 0.1 rad/s of slip
+
+
 def test_okr_follows_a_platform_turn_only_the_images_tell(world):
     """No odometry, no gyro: the platform turns at 0.3 rad/s for 3 s and the forward model
     does not know. Without OKR the gaze turns away with the robot; with the retinal slip of the
