@@ -5,10 +5,11 @@ script as an outside subscriber, and a garbage publisher (its own process) putti
 on every input key: random bytes, valid messages of the wrong schema, the right schema with a
 wrong version.
 
-The 1 kHz rates are counted where they are consumed, valid messages only: the IMU samples the
-gaze's control loop took (``messages_valid`` of ``sensors/imu`` in its metrics; samples it
-skipped for a newer one do not count) and the head commands the sim applied (``cmd/head`` in
-its metrics), read once a minute. (An outside subscriber of both 1 kHz streams costs this
+The 1 kHz rates are counted where they are consumed, valid messages only: the IMU samples that
+reached the gaze whole (``messages_valid`` of ``sensors/imu`` in its metrics: taken by its
+control loop, or replaced by a newer one that came while a step ran; the steps themselves are
+``control_hz``) and the head commands the sim applied (``cmd/head`` in its metrics), read once
+a minute. (An outside subscriber of both 1 kHz streams costs this
 2-core machine about a quarter of a core in Zenoh's threads alone, a load no user's viewer puts
 on a robot; ``--outside-1khz`` adds it, counted the same way.) The outside subscriber here takes
 what a viewer takes: every RGB-D frame, the observations and the scene model, at ordinary
@@ -182,6 +183,8 @@ def consumed(session: zenoh.Session, keys: Keys) -> dict[str, tuple[int, float]]
             if replies:
                 m = decode(replies[0].ok.payload.to_bytes(), ServiceMetrics)
                 out[name] = (m.messages_valid.get(key, 0), m.stamp)
+                if service == "gaze":
+                    out["control"] = (int(m.extra.get("control_steps", 0)), m.stamp)
                 break
     return out
 
@@ -313,7 +316,7 @@ def main() -> int:
             now = consumed(session, keys)
             rate = {name: round((now[name][0] - taken[name][0]) / (now[name][1] - taken[name][1]),
                                 1) if name in now and name in taken else float("nan")
-                    for name in ("imu", "cmd_head")}  # fmt: skip
+                    for name in ("imu", "cmd_head", "control")}  # fmt: skip
             taken = now
             all_errors += errors
             status = supervised(session, keys)
@@ -326,6 +329,7 @@ def main() -> int:
                 "minute": minute,
                 "imu_hz": rate["imu"],
                 "cmd_head_hz": rate["cmd_head"],
+                "control_hz": rate["control"],
                 "frames_hz": round(counts.get(keys.rgbd("head_rgbd"), 0) / took, 2),
                 "observation_hz": round(counts.get(keys.observation(), 0) / took, 2),
                 "scene_updates": counts.get(keys.scene(), 0),
@@ -341,7 +345,8 @@ def main() -> int:
                 row["outside_imu_hz"] = round(counts.get(keys.imu(), 0) / took, 1)
                 row["outside_cmd_head_hz"] = round(counts.get(keys.cmd_head(), 0) / took, 1)
             rows.append(row)
-            print(f"minute {minute}: IMU {row['imu_hz']} Hz, cmd/head {row['cmd_head_hz']} Hz, "
+            print(f"minute {minute}: IMU {row['imu_hz']} Hz, control steps {row['control_hz']} Hz, "
+                  f"cmd/head {row['cmd_head_hz']} Hz, "
                   f"frames {row['frames_hz']} Hz, observations {row['observation_hz']} Hz, "
                   f"scene updates {row['scene_updates']}, "
                   f"gaze error p50 {row['gaze_error_deg_p50']}° p99 {row['gaze_error_deg_p99']}°, "

@@ -152,8 +152,9 @@ class Node:
         runs on a thread of its own, in arrival order, with at most N samples waiting (the
         oldest go first when it falls behind). With ``latest_only`` it runs on a thread of its
         own and always gets the newest *valid* sample: up to ``LATEST_RING`` waiting samples
-        are looked at newest first, so garbage published on the key cannot evict a good one,
-        and the older ones are counted as ``superseded``. ``accept`` sees the raw payload first
+        are looked at newest first, so garbage published on the key cannot evict a good one;
+        each is validated and counted (a valid one a newer one replaced as ``superseded``, and
+        in ``messages_valid``: it arrived, whole). ``accept`` sees the raw payload first
         (e.g. ``codec.peek``): a sample it refuses is not decoded at all. ``nice`` (with a
         thread of its own): that thread at ordinary scheduling and this nice value, whatever its
         process's (e.g. image work beside a real-time loop, or deferrable work at
@@ -185,14 +186,17 @@ class Node:
             waiting = [first]
             while (sample := subscriber.handler.try_recv()) is not None:
                 waiting.append(sample)
-            for i, sample in enumerate(reversed(waiting)):
+            newest: tuple[str, M] | None = None
+            for sample in reversed(waiting):  # every one validated and counted, newest first
                 k, message = validated(sample)
-                if message is not None:
-                    older = len(waiting) - 1 - i
-                    if older:
-                        self.metrics.drop_n("superseded", older)
-                    self._handle(name, handler, message, k, with_key)
-                    return
+                if message is None:
+                    continue
+                if newest is None:
+                    newest = (k, message)
+                else:  # a valid sample a newer one replaced
+                    self.metrics.drop("superseded")
+            if newest is not None:
+                self._handle(name, handler, newest[1], newest[0], with_key)
 
         def pump() -> None:
             if nice is not None:

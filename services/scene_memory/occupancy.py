@@ -55,6 +55,10 @@ def depth_points(
     return cam @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
 
 
+#: voxels per slice when a snapshot packs the map's known-voxel mask (a multiple of 8)
+SNAPSHOT_SLICE = 1 << 23
+
+
 @dataclass(frozen=True)
 class OccupancyConfig:
     voxel: float = 0.01
@@ -352,9 +356,16 @@ class OccupancyMap:
         state = dict(self.__dict__)
         for k in ("_visited", "_hit", "_dirty", "_rays"):
             state.pop(k)
-        known = state.pop("L") != UNKNOWN
-        state["_known"] = np.packbits(known)
-        state["_values"] = self.L[known]
+        flat = state.pop("L").reshape(-1)
+        # in slices of 8 M voxels (a multiple of 8: the bits pack as if in one piece): the
+        # mask of a whole 56 M-voxel map would be a 56 MB temporary at every snapshot
+        bits, values = [], []
+        for a in range(0, flat.size, SNAPSHOT_SLICE):
+            known = flat[a : a + SNAPSHOT_SLICE] != UNKNOWN
+            bits.append(np.packbits(known))
+            values.append(flat[a : a + SNAPSHOT_SLICE][known])
+        state["_known"] = np.concatenate(bits) if bits else np.zeros(0, np.uint8)
+        state["_values"] = np.concatenate(values) if values else np.zeros(0, self.L.dtype)
         return state
 
     def __setstate__(self, state: dict) -> None:
