@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from services.perception.obb import cross
 from services.perception.primitives import Extracted
 from services.perception.relations import RelationConfig, top_area
 
@@ -47,10 +48,10 @@ def _pose(approach: np.ndarray, closing: np.ndarray, position: np.ndarray) -> np
     z = approach / np.linalg.norm(approach)
     y = closing - (closing @ z) * z
     n = np.linalg.norm(y)
-    y = y / n if n > 1e-9 else np.cross(z, [1.0, 0, 0] if abs(z[0]) < 0.9 else [0, 1.0, 0])
+    y = y / n if n > 1e-9 else cross(z, [1.0, 0, 0] if abs(z[0]) < 0.9 else [0, 1.0, 0])
     y /= np.linalg.norm(y)
     T = np.eye(4)
-    T[:3, :3] = np.column_stack([np.cross(y, z), y, z])
+    T[:3, :3] = np.column_stack([cross(y, z), y, z])
     T[:3, 3] = position
     return T
 
@@ -71,11 +72,11 @@ def affordances(
     out: list[AffordanceOut] = []
     for i, p in enumerate(prims):
         toward = _horizontal_towards(p.box.center, viewer)
-        side = np.cross(UP, toward)
+        side = cross(UP, toward)
         if p.kind == "cylinder":
             width = 2 * p.radius
             if hand.min_grasp <= width <= hand.max_grasp:
-                closing = np.cross(p.axis, toward)
+                closing = cross(p.axis, toward)
                 fit = 1 - abs(width - 0.6 * hand.max_grasp) / hand.max_grasp
                 out.append(
                     AffordanceOut(

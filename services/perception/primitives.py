@@ -17,7 +17,7 @@ from scipy import ndimage
 
 from services.perception import ransac
 from services.perception.cloud import OrganizedCloud
-from services.perception.obb import Box, axis_box, intersect, plane_box
+from services.perception.obb import Box, axis_box, cross, intersect, plane_box
 
 
 @dataclass
@@ -289,7 +289,7 @@ def _box_from_faces(faces: list[Extracted], points: np.ndarray, R: np.ndarray) -
 def _share_an_edge(a: Extracted, b: Extracted, config: ExtractionConfig) -> bool:
     """Two faces of one box are about as long along their common edge (a table top and the
     front of a crate standing on it are not)."""
-    edge = np.cross(a.normal, b.normal)
+    edge = cross(a.normal, b.normal)
     edge /= np.linalg.norm(edge)
     la, lb = np.ptp(a.points @ edge), np.ptp(b.points @ edge)
     return min(la, lb) >= config.box_edge_ratio * max(la, lb)
@@ -366,7 +366,7 @@ def assemble_boxes(prims: list[Extracted], config: ExtractionConfig) -> list[Ext
         a1 = faces[0].normal
         a2 = faces[1].normal - (faces[1].normal @ a1) * a1
         a2 /= np.linalg.norm(a2)
-        R = np.column_stack([a1, a2, np.cross(a1, a2)])
+        R = np.column_stack([a1, a2, cross(a1, a2)])
         points = np.concatenate([f.points for f in faces])
         box = _box_from_faces(faces, points, R)
         out.append(

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from services.perception import kernels
+from services.perception.obb import cross
 
 SUBSET = 500  # points scoring the hypotheses
 
@@ -112,8 +113,8 @@ def refine_cylinder(
     # eigenvalues); on a nearly flat patch keep the hypothesis' axis
     a = v[:, 0] if w[1] > 4 * max(w[0], 1e-12) else axis
     a = a / np.linalg.norm(a)
-    e1 = _unit(np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0]))
-    e2 = np.cross(a, e1)
+    e1 = _unit(cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0]))
+    e2 = cross(a, e1)
     o = X.mean(axis=0)
     Q = np.column_stack([(X - o) @ e1, (X - o) @ e2])
     c2, r = _circle_fit(Q)
@@ -231,8 +232,8 @@ def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit | N
 
 def cylinder_arc(N: np.ndarray, axis: np.ndarray) -> float:
     """Angle (deg) the inlier normals sweep around the axis: small for a flat patch."""
-    e1 = _unit(np.cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0]))
-    e2 = np.cross(axis, e1)
+    e1 = _unit(cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0]))
+    e2 = cross(axis, e1)
     ang = np.arctan2(N @ e2, N @ e1)
     ang = np.sort(np.mod(ang, 2 * np.pi))
     if len(ang) < 2:
