@@ -63,6 +63,14 @@ class Extracted:
     height: float = 0.0  # cylinder
 
 
+def _member(pixels: np.ndarray, of: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """Which of ``pixels`` (flat grid indices) are among ``of``: a mask over the grid, not
+    np.isin's sort (a tenth of the time on a segment's pixels)."""
+    grid = np.zeros(shape[0] * shape[1], bool)
+    grid[of] = True
+    return grid[pixels]
+
+
 def _largest_cluster(pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """The largest 8-connected component (on the grid) of the given pixels: Euclidean
     clustering where neighbours are pixels."""
@@ -188,7 +196,7 @@ def extract_segment(
         if len(cluster) < least:
             continue
         if best.kind == "cylinder":  # the box spans the side only: caps do not move the ends
-            side = np.isin(cluster, remaining[_distances(best, X) < dist])
+            side = _member(cluster, remaining[_distances(best, X) < dist], cloud.shape)
             prim = _make(
                 best,
                 cluster[side],
@@ -200,7 +208,7 @@ def extract_segment(
         else:
             prim = _make(best, cluster, P[cluster].astype(np.float64), segment, cloud.camera_centre)
         out.append(prim)
-        remaining = remaining[~np.isin(remaining, cluster)]
+        remaining = remaining[~_member(remaining, cluster, cloud.shape)]
         parts += [p for p in _components(remaining, cloud.shape) if len(p) >= config.tau_min]
     return out
 
