@@ -307,8 +307,8 @@ class GazeNode:
                 # a command this late would undo that
                 self.node.metrics.drop("late_step")
                 return
-            self.out_head.put(
-                HeadCommand(
+            self.out_head.put(  # (built unchecked at 1 kHz: the sim validates it)
+                HeadCommand.model_construct(
                     seq=self._seq(), stamp=imu.stamp, names=list(cmd.velocity), mode="velocity",
                     values=np.array(list(cmd.velocity.values())), source="gaze",
                     trigger_stamp=imu.stamp,
