@@ -199,6 +199,32 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
+def thread_ticks(pids: dict[int, str]) -> dict[tuple[str, str], int]:
+    """CPU ticks (user + system) so far of every thread of the given processes, keyed by
+    (process label, thread name): threads of one name are summed (Zenoh's rx-0, rx-1 …)."""
+    out: dict[tuple[str, str], int] = defaultdict(int)
+    for pid, label in pids.items():
+        for task in Path(f"/proc/{pid}/task").glob("*"):
+            try:
+                comm = (task / "comm").read_text().strip()
+                fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            out[(label, comm.rstrip("0123456789-") or comm)] += int(fields[11]) + int(fields[12])
+    return out
+
+
+def cpu_table(before: dict, after: dict, seconds: float) -> dict[str, dict[str, float]]:
+    """Per process, its threads' CPU over the interval in % of one core, largest first."""
+    hz = os.sysconf("SC_CLK_TCK")
+    table: dict[str, dict[str, float]] = defaultdict(dict)
+    for (label, thread), ticks in after.items():
+        share = 100 * (ticks - before.get((label, thread), 0)) / hz / seconds
+        if share >= 0.5:
+            table[label][thread] = round(share, 1)
+    return {label: dict(sorted(t.items(), key=lambda kv: -kv[1])) for label, t in table.items()}
+
+
 def supervised(session: zenoh.Session, keys: Keys) -> SupervisorStatus | None:
     for _ in range(3):  # asked again: a loaded machine may miss one answer
         for r in session.get(keys.supervisor(), timeout=3):
@@ -308,6 +334,11 @@ def main() -> int:
         time.sleep(5.0)  # the gaze turns to the target and the drive gets going
         meter.take()
         t_minute, taken = time.monotonic(), consumed(session, keys)
+        labels = {c["pid"]: c["instance"] for c in ready["services"] if c["pid"]}
+        labels |= {up.pid: "router (avs up)", os.getpid(): "soak meter"}
+        if junk is not None:
+            labels[junk.pid] = "garbage"
+        ticks0, t_ticks = thread_ticks(labels), time.monotonic()
         for minute in range(1, args.minutes + 1):
             time.sleep(max(0.0, t_minute + 60 - time.monotonic()))
             took = time.monotonic() - t_minute
@@ -352,6 +383,7 @@ def main() -> int:
                   f"gaze error p50 {row['gaze_error_deg_p50']}° p99 {row['gaze_error_deg_p99']}°, "
                   f"restarts {row['restarts']}, token flaps {row['token_flaps']}",
                   flush=True)  # fmt: skip
+        cpu = cpu_table(ticks0, thread_ticks(labels), time.monotonic() - t_ticks)
         meter.watching_tokens = False
         stop.set()
         final = supervised(session, keys)
@@ -378,7 +410,12 @@ def main() -> int:
         if all_errors else float("nan"),
     }  # fmt: skip
     (args.out / "soak.json").write_text(json.dumps({"minutes": rows, "summary": summary,
-                                                    "flaps": meter.flaps}, indent=1))  # fmt: skip
+                                                    "flaps": meter.flaps, "cpu_percent": cpu},
+                                                   indent=1))  # fmt: skip
+    print("where the cores go (% of one core, the whole run):")
+    for label, threads in sorted(cpu.items(), key=lambda kv: -sum(kv[1].values())):
+        top = ", ".join(f"{t} {v:.0f}" for t, v in list(threads.items())[:6])
+        print(f"  {label}: {sum(threads.values()):.0f} ({top})")
     plot(rows, args.out / "soak.png")
     print(f"wrote {args.out / 'soak.json'} and {args.out / 'soak.png'}")
     print(" ".join(f"{k}={v}" for k, v in summary.items()))

@@ -23,7 +23,7 @@ from schemas.keys import Keys, check_chunk
 from schemas.runtime import QueryError
 from services.common.config import ServiceSettings
 from services.common.metrics import Metrics
-from services.common.realtime import ordinary
+from services.common.realtime import ordinary, os_thread_name
 from services.common.transport import open_session, publisher_options
 
 M = TypeVar("M", bound=Message)
@@ -289,7 +289,11 @@ class Node:
     # -- life cycle ---------------------------------------------------------------------------
 
     def _start_thread(self, target: Callable[[], None], name: str) -> threading.Thread:
-        thread = threading.Thread(target=target, name=name, daemon=True)
+        def named() -> None:
+            os_thread_name(name.split(":", 1)[-1])  # the process says which service
+            target()
+
+        thread = threading.Thread(target=named, name=name, daemon=True)
         thread.start()
         self._threads.append(thread)
         return thread

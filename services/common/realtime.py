@@ -71,3 +71,11 @@ def ordinary(nice: int = 0) -> None:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     with contextlib.suppress(AttributeError, PermissionError, OSError):
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+
+
+def os_thread_name(name: str) -> None:
+    """Give the calling thread ``name`` where the OS shows it (Linux: the 15 bytes of
+    /proc/<pid>/task/<tid>/comm that top -H and ps -L print), so a thread's CPU can be told
+    from the others' (benchmarks/soak.py's per-thread table)."""
+    with contextlib.suppress(OSError, AttributeError):
+        Path(f"/proc/self/task/{threading.get_native_id()}/comm").write_text(name[:15])
