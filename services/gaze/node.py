@@ -85,6 +85,7 @@ class GazeNode:
                 speed=JOINT_SPEED.get(settings.robot, {}),
             ),
         )  # fmt: skip
+        self.stab.warm_up()  # before any input: the first control step must be on time
         self.okr_camera = settings.okr_camera or cameras[0]
         if self.okr_camera not in cameras:
             raise ValueError(f"okr_camera {self.okr_camera!r} is not a fixating camera {cameras}")

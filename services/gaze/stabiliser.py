@@ -81,6 +81,19 @@ class GazeStabiliser:
                                config.limit_time, config.centring, config.damping])  # fmt: skip
         self._no_bias = np.zeros(11)
 
+    def warm_up(self) -> None:
+        """Compile the control step's kernels now (seconds on a machine's first run, read from
+        numba's cache after), leaving the stabiliser as it was: a real-time loop must not
+        stall for them on its first sample."""
+        saved = (self.offset.copy(), self.stamp, self.last_target,
+                 None if self.bias is None else self.bias.state.copy())  # fmt: skip
+        zeros = dict.fromkeys(self.kin.joint_names, 0.0)
+        self.command(np.array([1.5, 0.0, 1.0]), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), zeros, zeros,
+                     np.zeros(3), 0.0, 0.001)  # fmt: skip
+        self.offset, self.stamp, self.last_target = saved[:3]
+        if self.bias is not None:
+            self.bias.state[:] = saved[3]
+
     def observe_slip(self, camera: str, slip: np.ndarray, dt: float) -> None:
         """OKR: the slip (rad/s along ``camera``'s x and y) over the last ``dt`` s moves the held
         point across that camera's view, at the fixation distance (from the last update)."""
@@ -128,7 +141,9 @@ class GazeStabiliser:
         qd, errors, omega_u = control_step(
             frames, mounts, jacobians, M_imu, J_imu, v, self.head_index, target,
             np.array([position.get(n, 0.0) for n in c.joints]),
-            np.zeros(3) if gyro is None else np.asarray(gyro, float), gyro is not None,
+            # (a copy: a decoded message's arrays are read-only views, another type to numba,
+            # which would compile the kernel again at the first live sample)
+            np.zeros(3) if gyro is None else np.array(gyro, float), gyro is not None,
             bias.state if bias is not None else self._no_bias, bias is not None,
             0.0 if stamp is None else float(stamp), stamp is not None,
             bias.params if bias is not None else self._no_bias, self.gains,
