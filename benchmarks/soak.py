@@ -290,6 +290,8 @@ def main() -> int:
     p.add_argument("--out", type=Path, default=Path("soak"))
     p.add_argument("--port", type=int, default=7461)
     p.add_argument("--no-garbage", action="store_true", help="without the garbage publisher")
+    p.add_argument("--scale", default="", metavar="NAME=N,…",
+                   help="avs up --scale (e.g. perception=2)")  # fmt: skip
     p.add_argument("--outside-1khz", action="store_true",
                    help="the outside subscriber also takes sensors/imu and cmd/head (its counts "
                    "are in the rows as outside_imu_hz, outside_cmd_head_hz)")  # fmt: skip
@@ -305,7 +307,8 @@ def main() -> int:
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
     up = subprocess.Popen(
         [sys.executable, "-P", "-m", "avs.cli", "--log-level", "WARNING", "up", "--listen",
-         endpoint, "--data-dir", str(args.out / "data")],
+         endpoint, "--data-dir", str(args.out / "data"),
+         *(["--scale", args.scale] if args.scale else [])],
         stdout=subprocess.PIPE, text=True, cwd=ROOT, env=env,
     )  # fmt: skip
     ready = json.loads(up.stdout.readline())
