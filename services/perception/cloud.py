@@ -50,15 +50,9 @@ def organized_cloud(
     h, w = z.shape
     valid = np.isfinite(z) & (z >= depth_min) & (z <= depth_max)
     z = np.where(valid, z, np.float32(0))
-    u = np.arange(0, w * stride, stride, dtype=np.float32)
-    v = np.arange(0, h * stride, stride, dtype=np.float32)
-    x = (u[None, :] - np.float32(cx)) / np.float32(fx) * z
-    y = (v[:, None] - np.float32(cy)) / np.float32(fy) * z
     R = T_world_camera[:3, :3].astype(np.float32)
     t = T_world_camera[:3, 3].astype(np.float32)
-    cam = np.stack([x, y, z], axis=-1)
-    points = cam @ R.T + t
-    points[~valid] = np.nan
+    points = kernels.back_project(z, valid, fx, fy, cx, cy, stride, R, t)
     colours = (
         np.asarray(rgb)[::stride, ::stride] if rgb is not None else np.zeros((h, w, 3), np.uint8)
     )

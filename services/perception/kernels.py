@@ -352,3 +352,124 @@ def part_stats(
             for k in range(3):
                 total[p, k] /= size[p]
     return size, region, total
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _solve3(M: np.ndarray, v: np.ndarray, out: np.ndarray) -> bool:
+    """M x = v for 3×3 M by Gaussian elimination with partial pivoting (LAPACK's gesv, as
+    np.linalg.solve); False when M is singular. M and v are overwritten."""
+    for k in range(3):
+        p = k
+        for i in range(k + 1, 3):
+            if abs(M[i, k]) > abs(M[p, k]):
+                p = i
+        if M[p, k] == 0.0:
+            return False
+        if p != k:
+            for j in range(3):
+                M[k, j], M[p, j] = M[p, j], M[k, j]
+            v[k], v[p] = v[p], v[k]
+        for i in range(k + 1, 3):
+            f = M[i, k] / M[k, k]
+            for j in range(k, 3):
+                M[i, j] -= f * M[k, j]
+            v[i] -= f * v[k]
+    for k in range(2, -1, -1):
+        s = v[k]
+        for j in range(k + 1, 3):
+            s -= M[k, j] * out[j]
+        out[k] = s / M[k, k]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def circle_fit(Q: np.ndarray, iterations: int) -> tuple[float, float, float, bool]:
+    """Circle through 2D points: Kåsa's algebraic fit (2x·cx + 2y·cy + c = x² + y², least
+    squares by the normal equations), then Gauss-Newton on the geometric distance
+    |q − c| − r. Returns (cx, cy, r, ok); not ok where a system is singular."""
+    n = Q.shape[0]
+    M, v, x = np.zeros((3, 3)), np.zeros(3), np.zeros(3)
+    for i in range(n):
+        a = (2.0 * Q[i, 0], 2.0 * Q[i, 1], 1.0)
+        b = Q[i, 0] * Q[i, 0] + Q[i, 1] * Q[i, 1]
+        for r in range(3):
+            v[r] += a[r] * b
+            for c in range(3):
+                M[r, c] += a[r] * a[c]
+    if not _solve3(M, v, x):
+        return 0.0, 0.0, 0.0, False
+    cx, cy = x[0], x[1]
+    radius = math.sqrt(max(x[2] + cx * cx + cy * cy, 0.0))
+    for _ in range(iterations):
+        M[:] = 0.0
+        v[:] = 0.0
+        for i in range(n):
+            dx, dy = Q[i, 0] - cx, Q[i, 1] - cy
+            dist = max(math.sqrt(dx * dx + dy * dy), 1e-9)
+            a = (-dx / dist, -dy / dist, -1.0)
+            b = radius - dist
+            for r in range(3):
+                v[r] += a[r] * b
+                for c in range(3):
+                    M[r, c] += a[r] * a[c]
+        if not _solve3(M, v, x):
+            return cx, cy, abs(radius), False
+        cx, cy, radius = cx + x[0], cy + x[1], radius + x[2]
+        if max(abs(x[0]), abs(x[1]), abs(x[2])) < 1e-6:
+            break
+    return cx, cy, abs(radius), True
+
+
+@njit(cache=True, nogil=True)
+def near(pixels: np.ndarray, mask: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Which of ``pixels`` (flat indices into a ``height`` × ``width`` grid) are within one
+    grid step (8-neighbourhood, itself included) of a ``mask``-ed one: a 3×3 dilation of the
+    masked pixels read at ``pixels``, on the pixels' bounding box only."""
+    n = pixels.shape[0]
+    out = np.zeros(n, np.bool_)
+    if n == 0:
+        return out
+    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
+    r0, r1, c0, c1 = height, -1, width, -1
+    for i in range(n):
+        r = pixels[i] // width
+        c = pixels[i] - r * width
+        rows[i], cols[i] = r, c
+        r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
+    grid = np.zeros((r1 - r0 + 3, c1 - c0 + 3), np.bool_)  # one pixel of border all round
+    for i in range(n):
+        rows[i] -= r0 - 1
+        cols[i] -= c0 - 1
+        if mask[i]:
+            grid[rows[i], cols[i]] = True
+    for i in range(n):
+        r, c = rows[i], cols[i]
+        out[i] = (
+            grid[r - 1, c - 1] or grid[r - 1, c] or grid[r - 1, c + 1]
+            or grid[r, c - 1] or grid[r, c] or grid[r, c + 1]
+            or grid[r + 1, c - 1] or grid[r + 1, c] or grid[r + 1, c + 1]
+        )  # fmt: skip
+    return out
+
+
+@njit(cache=True, nogil=True)
+def back_project(
+    z: np.ndarray, valid: np.ndarray, fx: float, fy: float, cx: float, cy: float, stride: int,
+    R: np.ndarray, t: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """World points (h, w, 3) float32 of a (strided) depth grid: pixel (v, u) of the grid is
+    (stride·u, stride·v) of the image; NaN where not ``valid``."""
+    h, w = z.shape
+    out = np.empty((h, w, 3), np.float32)
+    for v in range(h):
+        y_over_z = (np.float32(stride * v) - np.float32(cy)) / np.float32(fy)
+        for u in range(w):
+            if not valid[v, u]:
+                out[v, u, 0] = out[v, u, 1] = out[v, u, 2] = np.nan
+                continue
+            d = z[v, u]
+            x = (np.float32(stride * u) - np.float32(cx)) / np.float32(fx) * d
+            y = y_over_z * d
+            for k in range(3):
+                out[v, u, k] = R[k, 0] * x + R[k, 1] * y + R[k, 2] * d + t[k]
+    return out

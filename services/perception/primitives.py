@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from services.perception import ransac
+from services.perception import kernels, ransac
 from services.perception.cloud import OrganizedCloud
 from services.perception.obb import Box, axis_box, cross, intersect, plane_box
 
@@ -229,7 +229,12 @@ def _components(pixels: np.ndarray, shape: tuple[int, int]) -> list[np.ndarray]:
 
 
 def _near(pixels: np.ndarray, mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Which of ``pixels`` are within one grid step of the ``mask``-ed ones."""
+    """Which of ``pixels`` are within one grid step of the ``mask``-ed ones (compiled)."""
+    return kernels.near(pixels, mask, shape[1], shape[0])
+
+
+def _near_numpy(pixels: np.ndarray, mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """``_near`` by scipy's dilation (the reference the compiled one is tested against)."""
     rows, cols = np.divmod(pixels, shape[1])
     r0, c0 = rows.min() - 1, cols.min() - 1
     grid = np.zeros((rows.max() - r0 + 2, cols.max() - c0 + 2), bool)

@@ -31,7 +31,7 @@ class Fit:
 
     @property
     def count(self) -> int:
-        return int(self.inliers.sum())
+        return int(np.count_nonzero(self.inliers))
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -87,7 +87,15 @@ def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _circle_fit(Q: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, float]:
     """Circle fit in 2D: algebraic (Kåsa) start, then Gauss-Newton on the geometric distance
-    (Kåsa alone shrinks the radius of a short, noisy arc)."""
+    (Kåsa alone shrinks the radius of a short, noisy arc). Compiled; numpy (least squares by
+    SVD) only where a system is singular."""
+    cx, cy, r, ok = kernels.circle_fit(np.ascontiguousarray(Q, np.float64), iterations)
+    if ok:
+        return np.array([cx, cy]), r
+    return _circle_fit_numpy(Q, iterations)
+
+
+def _circle_fit_numpy(Q: np.ndarray, iterations: int = 4) -> tuple[np.ndarray, float]:
     A = np.column_stack([2 * Q, np.ones(len(Q))])
     sol = _solve(A, (Q**2).sum(1))
     c = sol[:2]
