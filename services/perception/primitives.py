@@ -153,11 +153,12 @@ def extract_segment(
         sample = np.arange(len(X))
         if len(X) > config.tau_max:
             sample = rng.choice(len(X), config.tau_max, replace=False)
-        cam_dist = float(np.median(np.linalg.norm(X[sample[:200]] - cloud.camera_centre, axis=1)))
+        Xs, Ns = X[sample], N[sample]
+        cam_dist = float(np.median(np.linalg.norm(Xs[:200] - cloud.camera_centre, axis=1)))
         dist = config.dist_base + config.dist_quad * cam_dist**2
         angle = config.angle_deg + config.angle_per_m * max(0.0, cam_dist - 1.0)
         cos_min = np.cos(np.radians(min(angle, config.angle_max)))
-        plane = ransac.fit_plane(X[sample], N[sample], rng, dist, cos_min)
+        plane = ransac.fit_plane(Xs, Ns, rng, dist, cos_min)
         fits = [plane]
         # a curved model must have curved_gain × the plane's inliers: impossible once the plane
         # explains more than 1 / curved_gain of the segment
@@ -165,7 +166,7 @@ def extract_segment(
         two_planes = 0  # points a second plane explains beyond the first (a box's faces)
         if 0 < plane_share * config.curved_gain < 1.0:
             rest = ~plane.inliers
-            second = ransac.fit_plane(X[sample][rest], N[sample][rest], rng, dist, cos_min, 24)
+            second = ransac.fit_plane(Xs[rest], Ns[rest], rng, dist, cos_min, 24)
             if second is not None:
                 two_planes = plane.count + second.count
                 if two_planes >= config.two_plane_share * len(sample):
@@ -173,13 +174,11 @@ def extract_segment(
         if plane_share * config.curved_gain < 1.0:
             fits.append(
                 ransac.fit_cylinder(
-                    X[sample], N[sample], rng, dist, cos_min, config.radius_min, config.radius_max
+                    Xs, Ns, rng, dist, cos_min, config.radius_min, config.radius_max
                 )
             )
             fits.append(
-                ransac.fit_sphere(
-                    X[sample], N[sample], rng, dist, cos_min, config.radius_min, config.radius_max
-                )
+                ransac.fit_sphere(Xs, Ns, rng, dist, cos_min, config.radius_min, config.radius_max)
             )
         best = _choose(fits, X, N, dist, cos_min, config, two_planes * len(X) / len(sample))
         if best is None or best.count < least:
