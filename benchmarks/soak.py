@@ -342,6 +342,7 @@ def main() -> int:
         if junk is not None:
             labels[junk.pid] = "garbage"
         ticks0, t_ticks = thread_ticks(labels), time.monotonic()
+        ticks_minute = ticks0
         for minute in range(1, args.minutes + 1):
             time.sleep(max(0.0, t_minute + 60 - time.monotonic()))
             took = time.monotonic() - t_minute
@@ -375,6 +376,12 @@ def main() -> int:
                 "restarts": sum(s.restarts for s in status.services) if status else -1,
                 "token_flaps": len(meter.flaps),
             }  # fmt: skip
+            ticks = thread_ticks(labels)  # each process's share of the machine this minute
+            row["cpu_percent"] = {
+                label: round(sum(t.values()))
+                for label, t in cpu_table(ticks_minute, ticks, took).items()
+            }
+            ticks_minute = ticks
             if args.outside_1khz:
                 row["outside_imu_hz"] = round(counts.get(keys.imu(), 0) / took, 1)
                 row["outside_cmd_head_hz"] = round(counts.get(keys.cmd_head(), 0) / took, 1)
@@ -384,7 +391,8 @@ def main() -> int:
                   f"frames {row['frames_hz']} Hz, observations {row['observation_hz']} Hz, "
                   f"scene updates {row['scene_updates']}, "
                   f"gaze error p50 {row['gaze_error_deg_p50']}° p99 {row['gaze_error_deg_p99']}°, "
-                  f"restarts {row['restarts']}, token flaps {row['token_flaps']}",
+                  f"restarts {row['restarts']}, token flaps {row['token_flaps']}; CPU % "
+                  + ", ".join(f"{k} {v}" for k, v in row["cpu_percent"].items()),
                   flush=True)  # fmt: skip
         cpu = cpu_table(ticks0, thread_ticks(labels), time.monotonic() - t_ticks)
         meter.watching_tokens = False

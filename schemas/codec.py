@@ -70,29 +70,36 @@ def _packb(value: Any) -> bytes:
 
 _ARRAY_KEYS = [_packb("dtype"), None, _packb("shape"), None, _packb("bytes")]
 
-#: msgpack of everything in an array's map before its bytes, by (dtype, shape): the same few
-#: shapes go out at 1 kHz (bounded: clouds of every size are packed, not cached)
+#: msgpack of everything in an array's map before its data (the bin header included: the size
+#: follows from dtype and shape), by (dtype, shape) of little-endian arrays: the same few shapes
+#: go out at 1 kHz (bounded: clouds of every size are packed, not cached)
 _ARRAY_HEADS: dict[tuple[np.dtype, tuple[int, ...]], bytes] = {}
 _MAX_ARRAY_HEADS = 4096
 
 
 def _array_head(a: np.ndarray) -> bytes:
+    """(a little-endian array's)"""
     key = (a.dtype, a.shape)
     head = _ARRAY_HEADS.get(key)
     if head is None:
         head = b"".join((b"\x83", _ARRAY_KEYS[0], _packb(wire_dtype_name(a.dtype)),
-                         _ARRAY_KEYS[2], _packb(list(a.shape)), _ARRAY_KEYS[4]))  # fmt: skip
+                         _ARRAY_KEYS[2], _packb(list(a.shape)), _ARRAY_KEYS[4],
+                         _bin_header(a.nbytes)))  # fmt: skip
         if len(_ARRAY_HEADS) < _MAX_ARRAY_HEADS:
             _ARRAY_HEADS[key] = head
     return head
 
 
 def _pack_array(a: np.ndarray, out: list) -> None:
-    if a.dtype.byteorder == ">" or not a.flags.c_contiguous:
-        wire = array_to_wire(a)
-        a = np.frombuffer(wire["bytes"], _LITTLE[wire["dtype"]]).reshape(wire["shape"])
-    raw = memoryview(a.reshape(-1).view(np.uint8))
-    out += (_array_head(a), _bin_header(len(raw)), raw)
+    head = _ARRAY_HEADS.get((a.dtype, a.shape))  # (a big-endian dtype is never a key)
+    if head is None or not a.flags.c_contiguous:
+        if a.dtype.byteorder == ">" or not a.flags.c_contiguous:
+            wire = array_to_wire(a)
+            a = np.frombuffer(wire["bytes"], _LITTLE[wire["dtype"]]).reshape(wire["shape"])
+        head = _array_head(a)
+    # a C-contiguous array is itself a bytes-like object to the final join: its data is
+    # copied once, there, with no view or memoryview made per array
+    out += (head, a)
 
 
 #: the msgpack of each model's field names, in order (a model's fields never change)

@@ -78,6 +78,21 @@ def _rests_on(obj: Extracted, surface: Extracted, config: RelationConfig) -> boo
     return bool(np.all(np.abs(local[:2]) <= surface.box.extent[:2] / 2 + config.contact))
 
 
+def fifth_percentile(x: np.ndarray) -> float:
+    """``np.percentile(x, 5)`` (linear interpolation, numpy's rounding) by a partition around
+    the two order statistics it needs: a tenth of the time on a few hundred values."""
+    n = len(x)
+    if n == 0:
+        raise ValueError("no values")
+    v = 0.05 * n + 0.95 - 1  # numpy's virtual index n·q + α + q(1 − α − β) − 1, α = β = 1
+    i = min(max(int(np.floor(v)), 0), n - 1)
+    j = min(i + 1, n - 1)
+    g = v - np.floor(v)
+    part = np.partition(x, (i, j)) if j != i else np.partition(x, i)
+    a, b = float(part[i]), float(part[j])
+    return b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g
+
+
 def _face_contact(s: Extracted, o: Extracted, config: RelationConfig):
     """The face of ``s``'s OBB that ``o`` touches from outside: (outward normal, contact point,
     overlap share) of the best one, or None. ``o``'s points must lie beyond the face plane (up
@@ -98,9 +113,9 @@ def _face_contact(s: Extracted, o: Extracted, config: RelationConfig):
             continue
         for sign in (1.0, -1.0):
             d = sign * local[over, k] - half[k]  # distance beyond the face
-            if np.percentile(d, 5) < -config.contact / 2 or d.min() > config.contact:
+            if fifth_percentile(d) < -config.contact / 2 or d.min() > config.contact:
                 continue
-            if np.percentile(sign * local[:, k] - half[k], 5) < -config.contact / 2:
+            if fifth_percentile(sign * local[:, k] - half[k]) < -config.contact / 2:
                 continue  # o reaches past the face's plane beside it: it stands next to s
             if best is None or share > best[2]:
                 n = sign * R[:, k]

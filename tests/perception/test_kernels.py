@@ -1,4 +1,5 @@
-"""The compiled kernels against the numpy/scipy code they replace: the same answers."""
+"""The compiled kernels (and other fast paths) against the numpy/scipy code they replace: the
+same answers."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ import pytest
 
 from services.perception import primitives, ransac
 from services.perception.cloud import organized_cloud
+from services.perception.relations import fifth_percentile
 
 SHAPE = (240, 320)
 
@@ -67,3 +69,10 @@ def test_back_projection_matches_the_pinhole_model():
     assert ok.sum() < ok.size and not ok[2, 3]  # (4, 6) is grid (2, 3): NaN, masked
     assert np.isnan(cloud.points[~ok]).all()
     assert np.abs(cloud.points[ok] - expected[ok]).max() < 1e-5
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 20, 21, 400, 1999])
+def test_fifth_percentile_is_numpys(n):
+    rng = np.random.default_rng(n)
+    for x in (rng.normal(size=n), np.round(rng.normal(size=n), 1)):
+        assert fifth_percentile(x) == pytest.approx(float(np.percentile(x, 5)), abs=1e-12)
