@@ -58,6 +58,21 @@ def array_to_wire(a: np.ndarray) -> dict[str, Any]:
 
 def array_from_wire(value: Any) -> np.ndarray:
     """Build a read-only array over the wire map's bytes; raises ``ValueError`` on any mismatch."""
+    # the common case first, checked field by field without a generator (1 kHz messages carry
+    # 3-vectors): a one-dimensional array of a wire dtype whose bytes have its size exactly
+    if type(value) is dict and len(value) == 3:
+        shape, data = value.get("shape"), value.get("bytes")
+        dt = _LITTLE.get(value.get("dtype"), None) if type(value.get("dtype")) is str else None
+        if (
+            dt is not None
+            and type(shape) is list
+            and len(shape) == 1
+            and type(shape[0]) is int
+            and shape[0] >= 0
+            and type(data) is bytes
+            and len(data) == shape[0] * dt.itemsize
+        ):
+            return np.frombuffer(data, dtype=dt)
     if not isinstance(value, dict) or value.keys() != WIRE_KEYS:
         raise ValueError("expected an array map with exactly the keys dtype, shape, bytes")
     dtype, shape, data = value["dtype"], value["shape"], value["bytes"]
