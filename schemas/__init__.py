@@ -6,7 +6,7 @@ key expressions of SPEC §1.
 """
 
 from schemas.base import REGISTRY, Message, Model, Stamped
-from schemas.codec import ERROR_KINDS, CodecError, decode, encode
+from schemas.codec import ERROR_KINDS, CodecError, decode, encode, encode_fields
 from schemas.commands import BaseGoal, BaseVelocity, HeadCommand
 from schemas.gaze import EgoSphereSnapshot, GazeTarget
 from schemas.keys import DEFAULT_ROBOT, KEY_TABLE, Keys, KeySpec, spec_for
@@ -93,5 +93,6 @@ __all__ = [
     "ViewCandidates",
     "decode",
     "encode",
+    "encode_fields",
     "spec_for",
 ]

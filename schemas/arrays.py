@@ -61,8 +61,8 @@ def array_from_wire(value: Any) -> np.ndarray:
     # the common case first, checked field by field without a generator (1 kHz messages carry
     # 3-vectors): a one-dimensional array of a wire dtype whose bytes have its size exactly
     if type(value) is dict and len(value) == 3:
-        shape, data = value.get("shape"), value.get("bytes")
-        dt = _LITTLE.get(value.get("dtype"), None) if type(value.get("dtype")) is str else None
+        dtype, shape, data = value.get("dtype"), value.get("shape"), value.get("bytes")
+        dt = _LITTLE.get(dtype) if type(dtype) is str else None
         if (
             dt is not None
             and type(shape) is list

@@ -151,10 +151,7 @@ def _pack(value: Any, out: list) -> None:
 _ENVELOPES: dict[type, bytes] = {}
 
 
-def encode(message: Message) -> bytes:
-    """The msgpack bytes of ``message``, envelope included: exactly what ``msgpack.packb`` gives
-    for the equivalent plain map, built with a single copy of each array."""
-    cls = type(message)
+def _envelope(cls: type[Message]) -> bytes:
     envelope = _ENVELOPES.get(cls)
     if envelope is None:
         if cls.SCHEMA not in REGISTRY:
@@ -163,10 +160,52 @@ def encode(message: Message) -> bytes:
             _header(0x80, 16, 0xDE, 0xDF, len(cls.model_fields) + 2),
             _packb("schema"), _packb(cls.SCHEMA), _packb("version"), _packb(cls.VERSION),
         ))  # fmt: skip
-    out: list = [envelope]
+    return envelope
+
+
+def encode(message: Message) -> bytes:
+    """The msgpack bytes of ``message``, envelope included: exactly what ``msgpack.packb`` gives
+    for the equivalent plain map, built with a single copy of each array."""
+    cls = type(message)
+    out: list = [_envelope(cls)]
     for k, packed in _field_keys(cls):
         out.append(packed)
         _pack(getattr(message, k), out)
+    return b"".join(out)
+
+
+#: each message class's field defaults (None where a field has none, or a factory)
+_DEFAULTS: dict[type, dict[str, Any]] = {}
+_REQUIRED = object()
+
+
+def encode_fields(cls: type[M], **values: Any) -> bytes:
+    """``encode(cls.model_construct(**values))`` without building the model (a fifth of an IMU
+    sample's cost at its producer): for the 1 kHz streams built from a service's own state.
+    Nothing is validated here (every receiver validates what it decodes); a field left out
+    takes its default, and a name that is not a field, or a required field left out, is a
+    ``TypeError``."""
+    defaults = _DEFAULTS.get(cls)
+    if defaults is None:
+        defaults = _DEFAULTS[cls] = {
+            k: _REQUIRED if f.is_required() or f.default_factory is not None else f.default
+            for k, f in cls.model_fields.items()
+        }
+    out: list = [_envelope(cls)]
+    used = 0
+    for k, packed in _field_keys(cls):
+        if k in values:
+            value = values[k]
+            used += 1
+        else:
+            value = defaults[k]
+            if value is _REQUIRED:
+                raise TypeError(f"{cls.__name__}: field {k!r} is required (or has a factory)")
+        out.append(packed)
+        _pack(value, out)
+    if used != len(values):
+        unknown = sorted(set(values) - set(defaults))
+        raise TypeError(f"{cls.__name__} has no field(s) {unknown}")
     return b"".join(out)
 
 

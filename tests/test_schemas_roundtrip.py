@@ -8,7 +8,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from schemas import REGISTRY, Message, decode, encode
+from schemas import REGISTRY, Message, decode, encode, encode_fields
 from schemas.arrays import WIRE_DTYPES, Array
 from schemas.base import Model, field_metadata
 from tests.strategies import model_strategy
@@ -107,3 +107,24 @@ def test_arrays_of_any_layout_go_out_as_their_little_endian_c_order_bytes(make):
         out: list = []
         codec._pack_array(a, out)
         assert b"".join(out) == msgpack.packb(expected, use_bin_type=True)
+
+
+@pytest.mark.parametrize(("name", "cls"), MESSAGES, ids=[n for n, _ in MESSAGES])
+@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data())
+def test_encode_fields_is_encode_of_the_model(name, cls, data):
+    message = data.draw(model_strategy(cls))
+    fields = {k: getattr(message, k) for k in cls.model_fields}
+    assert encode_fields(cls, **fields) == encode(message)
+
+
+def test_encode_fields_takes_defaults_and_refuses_what_is_no_field():
+    from schemas import ImuSample
+
+    v = {"seq": 3, "stamp": 0.5, "angular_velocity": np.zeros(3),
+         "linear_acceleration": np.zeros(3), "orientation": np.array([1.0, 0, 0, 0])}  # fmt: skip
+    assert encode_fields(ImuSample, **v) == encode(ImuSample(**v))  # frame: its default
+    with pytest.raises(TypeError, match="no field"):
+        encode_fields(ImuSample, **v, frames="x")
+    with pytest.raises(TypeError, match="orientation"):
+        encode_fields(ImuSample, **{k: x for k, x in v.items() if k != "orientation"})

@@ -64,7 +64,8 @@ def plane_box(points: np.ndarray, normal: np.ndarray) -> Box:
     orientation from the hull of at most 2,000 of the points, its sides from all of them)."""
     e1, e2 = _frame(normal)
     o = points.mean(0)
-    Q = np.column_stack([(points - o) @ e1, (points - o) @ e2])
+    D = points - o
+    Q = np.column_stack([D @ e1, D @ e2])
     sample = Q if len(Q) <= 2000 else Q[np.linspace(0, len(Q) - 1, 2000).astype(int)]
     d1 = _rectangle_direction(sample)
     d2 = np.array([-d1[1], d1[0]])
@@ -72,7 +73,7 @@ def plane_box(points: np.ndarray, normal: np.ndarray) -> Box:
     mid = (u.max() + u.min()) / 2 * d1 + (v.max() + v.min()) / 2 * d2
     a1 = d1[0] * e1 + d1[1] * e2
     a2 = cross(normal, a1)
-    h = (points - o) @ normal
+    h = D @ normal
     center = o + mid[0] * e1 + mid[1] * e2 + (h.max() + h.min()) / 2 * normal
     return Box(
         center, np.column_stack([a1, a2, normal]), np.array([np.ptp(u), np.ptp(v), np.ptp(h)])

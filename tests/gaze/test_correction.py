@@ -9,7 +9,15 @@ import math
 import numpy as np
 import pytest
 
-from schemas import BasePose, GazeTarget, HeadCommand, ImuSample, JointState, PoseCorrection
+from schemas import (
+    BasePose,
+    GazeTarget,
+    HeadCommand,
+    ImuSample,
+    JointState,
+    PoseCorrection,
+    decode,
+)
 from services.common import Node
 from services.common.poses import corrected_base
 from services.gaze.config import GazeSettings
@@ -50,7 +58,8 @@ def run(gaze: GazeNode, believed: tuple[float, float, float], steps: int = 400) 
     names = gaze.kin.joint_names
     q = np.array([float(gaze.stab.kin.q[gaze.kin.idx_q[n]]) for n in names])
     sent: list[HeadCommand] = []
-    gaze.out_head.put = sent.append  # what the node would publish on cmd/head
+    # what the node would publish on cmd/head
+    gaze.out_head.put_raw = lambda payload: sent.append(decode(payload, HeadCommand))
     gaze.on_target(GazeTarget(seq=1, stamp=0.0, point=TARGET, source="manual", hold_s=1e9))
     for k in range(steps):
         t = k * 1e-3
