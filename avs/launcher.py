@@ -79,6 +79,22 @@ class Child:
     started_at: float = field(default_factory=time.monotonic)
 
 
+#: transports whose endpoints are <host>:<port>, where a peer can listen on port 0
+PORT_TRANSPORTS = ("tcp", "udp", "tls", "quic")
+
+
+def peer_listen(endpoint: str) -> str | None:
+    """The endpoint a peer beside the router at ``endpoint`` listens on: the router's
+    transport and host, port 0 (the OS picks one); None where the transport has no ports
+    (a unix socket): the services stay clients of the router there."""
+    proto, _, address = endpoint.partition("/")
+    address = address.split("?", 1)[0].split("#", 1)[0]
+    host, sep, port = address.rpartition(":")
+    if proto not in PORT_TRANSPORTS or not sep or not host or not port.isdigit():
+        return None
+    return f"{proto}/{host}:0"
+
+
 class Supervisor:
     """Owns the router session and one process per service instance."""
 
@@ -144,9 +160,9 @@ class Supervisor:
             AVS_ROBOT=self.robot,
             AVS_INSTANCE=child.instance,
         )
-        if self.peers:  # each listens on the router's host, on a port of the OS's choosing
-            host = self.endpoint.split("/", 1)[1].rsplit(":", 1)[0]
-            env.update(AVS_MODE="peer", AVS_LISTEN=f"{self.endpoint.split('/')[0]}/{host}:0")
+        listen = peer_listen(self.endpoint) if self.peers else None
+        if listen is not None:  # each listens on the router's host, on a port the OS picks
+            env.update(AVS_MODE="peer", AVS_LISTEN=listen)
         env.setdefault("MUJOCO_GL", "egl")
         # the working directory must not shadow AVS's packages (a schemas/ folder there)
         env["PYTHONSAFEPATH"] = "1"

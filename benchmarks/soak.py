@@ -21,7 +21,11 @@ p99; writes ``DIR/soak.json`` and ``DIR/soak.png``. The last line:
 
 minutes=<n> imu_hz_min=<x> cmd_head_hz_min=<x> observation_hz_min=<x>
 scene_updates_per_min_min=<x> token_flaps=<n> restarts=<n> rss_growth_mb=<x>
-gaze_error_deg_p99=<x>
+gaze_error_deg_p99=<x> reference_perception_ms=<x>
+
+The last is the machine's speed: perception's CPU time on one frame of the scene alone, before
+and after the run (the larger). A shared machine's speed changes by half within an hour, and the
+rates with it: read them against it. Each minute's row also holds each process's CPU.
 
 Targets (issue 14): IMU ≥ 950 Hz and cmd/head ≥ 900 Hz in every minute, observations ≥ 5 Hz,
 scene updates every minute, 0 token flaps, 0 restarts, RSS growth ≤ 100 MB, p99 ≤ 1°.
@@ -225,6 +229,43 @@ def cpu_table(before: dict, after: dict, seconds: float) -> dict[str, dict[str, 
     return {label: dict(sorted(t.items(), key=lambda kv: -kv[1])) for label, t in table.items()}
 
 
+def host_reference(out: mp.Queue, repeats: int = 9) -> None:
+    """The machine's speed now: perception's CPU time on one frame of the soak's scene, from
+    the robot's start, alone (median of ``repeats``). Shared machines change speed by half
+    within an hour; the soak's rates are read against it."""
+    from avs.commands.perceive import look_target
+    from services.perception.pipeline import Perception
+    from services.sim import capture
+    from services.sim.render import CameraRenderer
+    from services.sim.robots import ARMAR6
+    from services.sim.world import World
+
+    world = World("tabletop_occluded", ARMAR6)
+    world.look_at(look_target(world))
+    renderer = CameraRenderer(world.model, 640, 480)
+    frame, _ = capture.view(world, renderer, "head_rgbd", np.random.default_rng(0))
+    renderer.close()
+    perception = Perception()
+    perception.warm_up()
+    times = []
+    for _ in range(repeats):
+        t0 = time.process_time()
+        perception.perceive(frame.depth, frame.rgb, frame.intrinsics, frame.T_world_camera)
+        times.append((time.process_time() - t0) * 1e3)
+    out.put(round(float(np.median(times)), 1))
+
+
+def reference_ms() -> float:
+    """``host_reference`` in a process of its own (the meter stays small)."""
+    ctx = mp.get_context("spawn")
+    q: mp.Queue = ctx.Queue()
+    proc = ctx.Process(target=host_reference, args=(q,))
+    proc.start()
+    ms = q.get(timeout=300)
+    proc.join(30)
+    return ms
+
+
 def supervised(session: zenoh.Session, keys: Keys) -> SupervisorStatus | None:
     for _ in range(3):  # asked again: a loaded machine may miss one answer
         for r in session.get(keys.supervisor(), timeout=3):
@@ -305,6 +346,10 @@ def main() -> int:
     target = np.asarray(facts.centre, float)
     endpoint, keys = f"tcp/127.0.0.1:{args.port}", Keys("armar6")
     env = dict(os.environ, MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    reference_before = reference_ms()
+    print(f"the machine now: perception takes {reference_before} ms of CPU on one frame alone",
+          flush=True)  # fmt: skip
     up = subprocess.Popen(
         [sys.executable, "-P", "-m", "avs.cli", "--log-level", "WARNING", "up", "--listen",
          endpoint, "--data-dir", str(args.out / "data"),
@@ -405,6 +450,7 @@ def main() -> int:
         junk.join(10)
     up.send_signal(signal.SIGINT)
     up.wait(60)
+    reference_after = reference_ms()
     growth = [rows[-1]["rss_mb"].get(str(pid), 0.0) - v for pid, v in rss_start.items()]
     summary = {
         "minutes": args.minutes,
@@ -419,7 +465,11 @@ def main() -> int:
         "rss_growth_mb": round(max(growth, default=0.0), 1),
         "gaze_error_deg_p99": round(float(np.percentile(all_errors, 99)), 3)
         if all_errors else float("nan"),
+        # the machine's speed before and after (perception alone on one frame, CPU ms)
+        "reference_perception_ms": max(reference_before, reference_after),
     }  # fmt: skip
+    print(f"the machine before and after: perception {reference_before} and "
+          f"{reference_after} ms of CPU on one frame alone")  # fmt: skip
     (args.out / "soak.json").write_text(json.dumps({"minutes": rows, "summary": summary,
                                                     "flaps": meter.flaps, "cpu_percent": cpu},
                                                    indent=1))  # fmt: skip

@@ -18,7 +18,7 @@ import pytest
 import zenoh
 
 from avs import acl
-from avs.launcher import Supervisor
+from avs.launcher import Supervisor, peer_listen
 from avs.services import BY_NAME
 from tests.conftest import ROOT, free_port, wait_for
 
@@ -187,3 +187,21 @@ def test_avs_up_services_join_as_peers_and_compose_wiring_stays_clients():
     client = Supervisor([BY_NAME["nbv"]], endpoint)
     env = client.child_env(client.children[0])
     assert env["AVS_MODE"] == "client"
+
+
+@pytest.mark.parametrize(
+    ("endpoint", "listen"),
+    [
+        ("tcp/127.0.0.1:7447", "tcp/127.0.0.1:0"),
+        ("tcp/[::1]:7447", "tcp/[::1]:0"),
+        ("tls/robot.local:7447?iface=eth0", "tls/robot.local:0"),
+        ("unixsock-stream//tmp/avs.sock", None),  # no ports: the services stay clients
+        ("tcp/127.0.0.1", None),
+    ],
+)
+def test_peers_listen_where_the_routers_transport_has_ports(endpoint, listen):
+    assert peer_listen(endpoint) == listen
+    sup = Supervisor([BY_NAME["nbv"]], endpoint, peers=True)
+    env = sup.child_env(sup.children[0])
+    assert env["AVS_MODE"] == ("peer" if listen else "client")
+    assert env.get("AVS_LISTEN") == listen or listen is None
