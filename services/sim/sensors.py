@@ -73,31 +73,15 @@ class ImuModel:
     """Gyro: ω + b + n, with b(0) ~ N(0, bias_sigma²) and b a random walk, n white with the
     noise density; accelerometer: a + n. One ``measure`` per sample, ``dt`` apart."""
 
-    #: samples whose normal draws are taken from the generator at once (a call per sample
-    #: cost more than the sample's arithmetic)
-    BLOCK = 1000
-
     def __init__(self, spec: SensorSpec, rng: np.random.Generator) -> None:
         self.spec, self.rng = spec, rng
         self.bias = rng.standard_normal(3) * spec.gyro_bias_sigma
-        self._draws = np.empty((0, 10))
-        self._next = 0
-        self._jitter = 0.0
-
-    def _row(self) -> np.ndarray:
-        """One sample's 10 standard normals: bias walk (3), gyro (3), accelerometer (3), the
-        stamp's jitter (1)."""
-        if self._next == len(self._draws):
-            self._draws, self._next = self.rng.standard_normal((self.BLOCK, 10)), 0
-        self._next += 1
-        return self._draws[self._next - 1]
 
     def measure(
         self, gyro: np.ndarray, accel: np.ndarray, dt: float
     ) -> tuple[np.ndarray, np.ndarray]:
         s = self.spec
-        n = self._row()
-        self._jitter = n[9]
+        n = self.rng.standard_normal(9)
         self.bias = self.bias + n[:3] * (s.gyro_bias_walk * math.sqrt(dt))
         white = 1.0 / math.sqrt(dt)  # σ of a sample = density / √Δt (Kalibr's convention)
         return (
@@ -106,8 +90,7 @@ class ImuModel:
         )
 
     def stamp(self, t: float) -> float:
-        """The stamp of the sample just measured (its own draw)."""
-        return t + float(self._jitter) * self.spec.imu_stamp_jitter
+        return t + float(self.rng.standard_normal()) * self.spec.imu_stamp_jitter
 
 
 class EncoderModel:
