@@ -473,3 +473,52 @@ def back_project(
             for k in range(3):
                 out[v, u, k] = R[k, 0] * x + R[k, 1] * y + R[k, 2] * d + t[k]
     return out
+
+
+@njit(cache=True, nogil=True)
+def grid_labels(pixels: np.ndarray, width: int, height: int) -> tuple[np.ndarray, int]:
+    """The 8-connected components of ``pixels`` (flat indices into a ``height`` × ``width``
+    grid): each pixel's label (1 … n) and n, labels in the raster order of each component's
+    first pixel, as ``scipy.ndimage.label`` numbers them."""
+    n = pixels.shape[0]
+    out = np.zeros(n, np.int64)
+    if n == 0:
+        return out, 0
+    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
+    r0, r1, c0, c1 = height, -1, width, -1
+    for i in range(n):
+        r = pixels[i] // width
+        c = pixels[i] - r * width
+        rows[i], cols[i] = r, c
+        r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
+    h, w = r1 - r0 + 1, c1 - c0 + 1
+    member = np.zeros((h, w), np.bool_)
+    for i in range(n):
+        rows[i] -= r0
+        cols[i] -= c0
+        member[rows[i], cols[i]] = True
+    label = np.zeros((h, w), np.int64)
+    stack = np.empty(n, np.int64)
+    count = 0
+    for r in range(h):
+        for c in range(w):
+            if not member[r, c] or label[r, c] != 0:
+                continue
+            count += 1
+            label[r, c] = count
+            top = 0
+            stack[0] = r * w + c
+            top = 1
+            while top > 0:
+                top -= 1
+                rr, cc = stack[top] // w, stack[top] % w
+                for dr in range(-1, 2):
+                    for dc in range(-1, 2):
+                        y, x = rr + dr, cc + dc
+                        if 0 <= y < h and 0 <= x < w and member[y, x] and label[y, x] == 0:
+                            label[y, x] = count
+                            stack[top] = y * w + x
+                            top += 1
+    for i in range(n):
+        out[i] = label[rows[i], cols[i]]
+    return out, count

@@ -76,14 +76,9 @@ def _largest_cluster(pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     clustering where neighbours are pixels."""
     if len(pixels) == 0:
         return pixels
-    rows, cols = np.divmod(pixels, shape[1])
-    r0, c0 = rows.min(), cols.min()
-    grid = np.zeros((rows.max() - r0 + 1, cols.max() - c0 + 1), bool)
-    grid[rows - r0, cols - c0] = True
-    labels, n = ndimage.label(grid, structure=np.ones((3, 3), bool))
+    own, n = kernels.grid_labels(pixels, shape[1], shape[0])
     if n <= 1:
         return pixels
-    own = labels[rows - r0, cols - c0]
     return pixels[own == np.argmax(np.bincount(own))]
 
 
@@ -216,12 +211,7 @@ def _components(pixels: np.ndarray, shape: tuple[int, int]) -> list[np.ndarray]:
     """The 8-connected components of the given grid pixels."""
     if len(pixels) == 0:
         return []
-    rows, cols = np.divmod(pixels, shape[1])
-    r0, c0 = rows.min(), cols.min()
-    grid = np.zeros((rows.max() - r0 + 1, cols.max() - c0 + 1), bool)
-    grid[rows - r0, cols - c0] = True
-    labels, n = ndimage.label(grid, structure=np.ones((3, 3), bool))
-    own = labels[rows - r0, cols - c0]
+    own, n = kernels.grid_labels(pixels, shape[1], shape[0])
     order = np.argsort(own, kind="stable")
     bounds = np.searchsorted(own[order], np.arange(1, n + 2))
     return [pixels[order[bounds[k] : bounds[k + 1]]] for k in range(n)]

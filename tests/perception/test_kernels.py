@@ -76,3 +76,22 @@ def test_fifth_percentile_is_numpys(n):
     rng = np.random.default_rng(n)
     for x in (rng.normal(size=n), np.round(rng.normal(size=n), 1)):
         assert fifth_percentile(x) == pytest.approx(float(np.percentile(x, 5)), abs=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_grid_labels_number_components_as_scipy_does(seed):
+    from scipy import ndimage
+
+    from services.perception import kernels
+
+    rng = np.random.default_rng(seed)
+    pixels = np.sort(rng.choice(SHAPE[0] * SHAPE[1], int(rng.integers(1, 30_000)), replace=False))
+    if seed % 2:  # in no particular order
+        rng.shuffle(pixels)
+    own, n = kernels.grid_labels(pixels, SHAPE[1], SHAPE[0])
+    rows, cols = np.divmod(pixels, SHAPE[1])
+    grid = np.zeros((rows.max() - rows.min() + 1, cols.max() - cols.min() + 1), bool)
+    grid[rows - rows.min(), cols - cols.min()] = True
+    labels, n_ref = ndimage.label(grid, structure=np.ones((3, 3), bool))
+    assert n == n_ref > 1
+    assert (own == labels[rows - rows.min(), cols - cols.min()]).all()
