@@ -78,7 +78,7 @@ _MAX_ARRAY_HEADS = 4096
 
 
 def _array_head(a: np.ndarray) -> bytes:
-    """(a little-endian array's)"""
+    """The msgpack before a little-endian array's data (cached by dtype and shape)."""
     key = (a.dtype, a.shape)
     head = _ARRAY_HEADS.get(key)
     if head is None:
@@ -174,7 +174,7 @@ def encode(message: Message) -> bytes:
     return b"".join(out)
 
 
-#: each message class's field defaults (None where a field has none, or a factory)
+#: each message class's field defaults (``_REQUIRED`` where a field has none, or a factory)
 _DEFAULTS: dict[type, dict[str, Any]] = {}
 _REQUIRED = object()
 

@@ -18,7 +18,7 @@ from typing import Any, TypeVar
 import zenoh
 
 from schemas.base import Message
-from schemas.codec import CodecError, decode, encode
+from schemas.codec import CodecError, decode, encode, encode_fields
 from schemas.keys import Keys, check_chunk
 from schemas.runtime import QueryError
 from services.common.config import ServiceSettings
@@ -48,6 +48,11 @@ class Output:
 
     def put(self, message: Message) -> None:
         self.put_raw(encode(message))
+
+    def put_fields(self, cls: type[Message], **fields: Any) -> None:
+        """Publish a ``cls`` message from its fields without building it
+        (``codec.encode_fields``: the 1 kHz streams; receivers validate)."""
+        self.put_raw(encode_fields(cls, **fields))
 
     def put_raw(self, payload: bytes) -> None:
         """Publish already encoded bytes (a replay)."""

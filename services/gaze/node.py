@@ -29,7 +29,6 @@ from schemas import (
     PoseCorrection,
     RgbdFrame,
     SceneObservation,
-    encode_fields,
 )
 from services.common.node import Node
 from services.common.poses import corrected_base
@@ -309,12 +308,10 @@ class GazeNode:
                 # a command this late would undo that
                 self.node.metrics.drop("late_step")
                 return
-            self.out_head.put_raw(  # (encoded unchecked at 1 kHz: the sim validates it)
-                encode_fields(
-                    HeadCommand, seq=self._seq(), stamp=imu.stamp, names=list(cmd.velocity),
-                    mode="velocity", values=np.array(list(cmd.velocity.values())),
-                    source="gaze", trigger_stamp=imu.stamp,
-                )
+            self.out_head.put_fields(  # (encoded unchecked at 1 kHz: the sim validates it)
+                HeadCommand, seq=self._seq(), stamp=imu.stamp, names=list(cmd.velocity),
+                mode="velocity", values=np.array(list(cmd.velocity.values())), source="gaze",
+                trigger_stamp=imu.stamp,
             )  # fmt: skip
             self.commanding = True
             if self.holding:

@@ -421,25 +421,35 @@ def circle_fit(Q: np.ndarray, iterations: int) -> tuple[float, float, float, boo
 
 
 @njit(cache=True, nogil=True)
-def near(pixels: np.ndarray, mask: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Which of ``pixels`` (flat indices into a ``height`` × ``width`` grid) are within one
+def _box_coords(pixels: np.ndarray, width: int, border: int):
+    """Rows and columns of ``pixels`` (flat indices into a grid ``width`` wide) in their
+    bounding box grown by ``border`` on every side, and that box's height and width."""
+    n = pixels.shape[0]
+    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
+    r0, r1, c0, c1 = pixels[0] // width, -1, width, -1
+    for i in range(n):
+        r = pixels[i] // width
+        c = pixels[i] - r * width
+        rows[i], cols[i] = r, c
+        r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
+    for i in range(n):
+        rows[i] -= r0 - border
+        cols[i] -= c0 - border
+    return rows, cols, r1 - r0 + 1 + 2 * border, c1 - c0 + 1 + 2 * border
+
+
+@njit(cache=True, nogil=True)
+def near(pixels: np.ndarray, mask: np.ndarray, width: int) -> np.ndarray:
+    """Which of ``pixels`` (flat indices into a grid ``width`` wide) are within one
     grid step (8-neighbourhood, itself included) of a ``mask``-ed one: a 3×3 dilation of the
     masked pixels read at ``pixels``, on the pixels' bounding box only."""
     n = pixels.shape[0]
     out = np.zeros(n, np.bool_)
     if n == 0:
         return out
-    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
-    r0, r1, c0, c1 = height, -1, width, -1
+    rows, cols, h, w = _box_coords(pixels, width, 1)  # one pixel of border all round
+    grid = np.zeros((h, w), np.bool_)
     for i in range(n):
-        r = pixels[i] // width
-        c = pixels[i] - r * width
-        rows[i], cols[i] = r, c
-        r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
-    grid = np.zeros((r1 - r0 + 3, c1 - c0 + 3), np.bool_)  # one pixel of border all round
-    for i in range(n):
-        rows[i] -= r0 - 1
-        cols[i] -= c0 - 1
         if mask[i]:
             grid[rows[i], cols[i]] = True
     for i in range(n):
@@ -476,26 +486,17 @@ def back_project(
 
 
 @njit(cache=True, nogil=True)
-def grid_labels(pixels: np.ndarray, width: int, height: int) -> tuple[np.ndarray, int]:
-    """The 8-connected components of ``pixels`` (flat indices into a ``height`` × ``width``
-    grid): each pixel's label (1 … n) and n, labels in the raster order of each component's
+def grid_labels(pixels: np.ndarray, width: int) -> tuple[np.ndarray, int]:
+    """The 8-connected components of ``pixels`` (flat indices into a grid ``width`` wide):
+    each pixel's label (1 … n) and n, labels in the raster order of each component's
     first pixel, as ``scipy.ndimage.label`` numbers them."""
     n = pixels.shape[0]
     out = np.zeros(n, np.int64)
     if n == 0:
         return out, 0
-    rows, cols = np.empty(n, np.int64), np.empty(n, np.int64)
-    r0, r1, c0, c1 = height, -1, width, -1
-    for i in range(n):
-        r = pixels[i] // width
-        c = pixels[i] - r * width
-        rows[i], cols[i] = r, c
-        r0, r1, c0, c1 = min(r0, r), max(r1, r), min(c0, c), max(c1, c)
-    h, w = r1 - r0 + 1, c1 - c0 + 1
+    rows, cols, h, w = _box_coords(pixels, width, 0)
     member = np.zeros((h, w), np.bool_)
     for i in range(n):
-        rows[i] -= r0
-        cols[i] -= c0
         member[rows[i], cols[i]] = True
     label = np.zeros((h, w), np.int64)
     stack = np.empty(n, np.int64)
@@ -506,7 +507,6 @@ def grid_labels(pixels: np.ndarray, width: int, height: int) -> tuple[np.ndarray
                 continue
             count += 1
             label[r, c] = count
-            top = 0
             stack[0] = r * w + c
             top = 1
             while top > 0:

@@ -76,7 +76,7 @@ def _largest_cluster(pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     clustering where neighbours are pixels."""
     if len(pixels) == 0:
         return pixels
-    own, n = kernels.grid_labels(pixels, shape[1], shape[0])
+    own, n = kernels.grid_labels(pixels, shape[1])
     if n <= 1:
         return pixels
     return pixels[own == np.argmax(np.bincount(own))]
@@ -211,7 +211,7 @@ def _components(pixels: np.ndarray, shape: tuple[int, int]) -> list[np.ndarray]:
     """The 8-connected components of the given grid pixels."""
     if len(pixels) == 0:
         return []
-    own, n = kernels.grid_labels(pixels, shape[1], shape[0])
+    own, n = kernels.grid_labels(pixels, shape[1])
     order = np.argsort(own, kind="stable")
     bounds = np.searchsorted(own[order], np.arange(1, n + 2))
     return [pixels[order[bounds[k] : bounds[k + 1]]] for k in range(n)]
@@ -219,7 +219,7 @@ def _components(pixels: np.ndarray, shape: tuple[int, int]) -> list[np.ndarray]:
 
 def _near(pixels: np.ndarray, mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     """Which of ``pixels`` are within one grid step of the ``mask``-ed ones (compiled)."""
-    return kernels.near(pixels, mask, shape[1], shape[0])
+    return kernels.near(pixels, mask, shape[1])
 
 
 def _near_numpy(pixels: np.ndarray, mask: np.ndarray, shape: tuple[int, int]) -> np.ndarray:

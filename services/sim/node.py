@@ -199,15 +199,13 @@ class SimNode:
             stamp = self.sensors.imu.stamp(stamp)
         # (the 1 kHz streams are encoded from the simulator's own state without a model or
         # pydantic's checks, half their cost; every receiver validates what it decodes)
-        self.out_imu.put_raw(
-            encode_fields(
-                ImuSample,
-                seq=self._next_seq("imu"),
-                stamp=stamp,
-                angular_velocity=gyro,
-                linear_acceleration=acc,
-                orientation=quat,
-            )
+        self.out_imu.put_fields(
+            ImuSample,
+            seq=self._next_seq("imu"),
+            stamp=stamp,
+            angular_velocity=gyro,
+            linear_acceleration=acc,
+            orientation=quat,
         )
 
     def publish_state(self) -> None:
@@ -228,20 +226,18 @@ class SimNode:
             x, y, yaw = sensors.odometry.update((x, y, yaw))
             yaw = math.atan2(math.sin(yaw), math.cos(yaw))
             vx, vy, vyaw = sensors.base_velocity(vx, vy, vyaw)
-        self.out_base.put_raw(
-            encode_fields(
-                BasePose,
-                seq=self._next_seq("base"),
-                stamp=w.time,
-                x=x,
-                y=y,
-                yaw=yaw,
-                v_x=vx,
-                v_y=vy,
-                v_yaw=vyaw,
-                goal_id=w.base.goal_id,
-                goal_status=w.base.status,
-            )
+        self.out_base.put_fields(
+            BasePose,
+            seq=self._next_seq("base"),
+            stamp=w.time,
+            x=x,
+            y=y,
+            yaw=yaw,
+            v_x=vx,
+            v_y=vy,
+            v_yaw=vyaw,
+            goal_id=w.base.goal_id,
+            goal_status=w.base.status,
         )
 
     def frame(self, renderer: CameraRenderer, camera: str) -> RgbdFrame:

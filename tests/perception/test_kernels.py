@@ -88,7 +88,7 @@ def test_grid_labels_number_components_as_scipy_does(seed):
     pixels = np.sort(rng.choice(SHAPE[0] * SHAPE[1], int(rng.integers(1, 30_000)), replace=False))
     if seed % 2:  # in no particular order
         rng.shuffle(pixels)
-    own, n = kernels.grid_labels(pixels, SHAPE[1], SHAPE[0])
+    own, n = kernels.grid_labels(pixels, SHAPE[1])
     rows, cols = np.divmod(pixels, SHAPE[1])
     grid = np.zeros((rows.max() - rows.min() + 1, cols.max() - cols.min() + 1), bool)
     grid[rows - rows.min(), cols - cols.min()] = True
