@@ -234,3 +234,59 @@ def test_a_queued_input_runs_off_the_zenoh_callback_in_order(node, client):
     wait_for(lambda: len(seen) == 10, 10, "every queued sample")
     assert seen == list(range(10))
     assert len(threads) == 1 and threads.pop().endswith(":slow")
+
+
+def test_an_inbox_gives_its_loop_the_valid_samples_in_order_and_counts_the_rest(node, client):
+    """``Node.inbox``: no thread of its own; ``take()`` returns what came since the last call,
+    valid ones in order, garbage counted; a ring found full is counted as ``inbox_full``."""
+    keys = Keys()
+    threads = threading.active_count()
+    inbox = node.inbox(keys.imu(), ImuSample, size=8)
+    assert threading.active_count() == threads
+    witness = _witness(node, keys.imu())
+    publisher = matched_publisher(client, keys.imu())
+    for i in range(3):
+        publisher.put(encode(imu(i)))
+    publisher.put(b"\x93\x01\x02")
+    publisher.put(encode(imu(3)))
+    witness(5)
+    assert [m.seq for m in inbox.take()] == [0, 1, 2, 3]
+    assert inbox.take() == []
+    assert node.metrics.snapshot().dropped == {"malformed": 1}
+    for i in range(4, 20):  # twice what the ring holds: the oldest are overwritten
+        publisher.put(encode(imu(i)))
+    witness(5 + 16)
+    assert [m.seq for m in inbox.take()] == list(range(12, 20))
+    assert node.metrics.snapshot().dropped == {"malformed": 1, "inbox_full": 1}
+
+
+def test_an_inbox_read_on_demand_decodes_only_the_newest_valid_sample(node, client):
+    """``newest()``: garbage after the last good sample cannot hide it; the older samples are
+    not decoded (counted in and as ``unread``); nothing new gives None."""
+    keys = Keys()
+    inbox = node.inbox(keys.imu(), ImuSample, size=16)
+    witness = _witness(node, keys.imu())
+    publisher = matched_publisher(client, keys.imu())
+    for i in range(5):
+        publisher.put(encode(imu(i)))
+    publisher.put(b"\x00\x01garbage")
+    publisher.put(b"\x00\x01garbage")
+    witness(7)
+    assert inbox.newest().seq == 4
+    m = node.metrics.snapshot()
+    assert m.messages_in[keys.imu()] == 7 and m.messages_valid[keys.imu()] == 1
+    assert m.dropped == {"malformed": 2, "unread": 4}
+    assert inbox.newest() is None
+
+
+def _witness(node, key: str):
+    """A plain subscriber beside the inbox in the node's session (outside its metrics):
+    ``witness(n)`` waits until n samples have reached the session, and a moment more."""
+    seen = []
+    node._subscribers.append(node.session.declare_subscriber(key, lambda s: seen.append(1)))
+
+    def wait(n: int) -> None:
+        wait_for(lambda: len(seen) >= n, 10, f"{n} samples")
+        time.sleep(0.2)
+
+    return wait

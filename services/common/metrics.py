@@ -28,9 +28,9 @@ class Metrics:
         self._gauges: dict[str, float] = {}
         self._seq = 0
 
-    def count_in(self, key: str) -> None:
+    def count_in(self, key: str, n: int = 1) -> None:
         with self._lock:
-            self._in[key] += 1
+            self._in[key] += n
 
     def count_valid(self, key: str) -> None:
         """An input on ``key`` that decoded and validated."""

@@ -13,7 +13,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterable
-from typing import Any, TypeVar
+from typing import Any, Generic, TypeVar
 
 import zenoh
 
@@ -66,6 +66,53 @@ class Output:
 
     def undeclare(self) -> None:
         self._publisher.undeclare()
+
+
+class Inbox(Generic[M]):
+    """A polled input (``Node.inbox``): no callback and no thread; the service's own loop takes
+    what came, validated and counted like a subscription's samples."""
+
+    def __init__(self, node: Node, subscriber: Any, message_type: type[M], size: int) -> None:
+        self._node, self._subscriber, self._type, self._size = node, subscriber, message_type, size
+        self._key = str(subscriber.key_expr)
+
+    def _waiting(self) -> list[zenoh.Sample]:
+        waiting: list[zenoh.Sample] = []
+        try:
+            while (sample := self._subscriber.handler.try_recv()) is not None:
+                waiting.append(sample)
+        except zenoh.ZError:  # closed: the node is stopping
+            pass
+        return waiting
+
+    def _valid(self, sample: zenoh.Sample) -> M | None:
+        key = str(sample.key_expr)
+        self._node.metrics.count_in(key)
+        return self._node._decode(key, sample.payload.to_bytes(), self._type)
+
+    def take(self) -> list[M]:
+        """The valid messages that came since the last call, oldest first (a full ring is
+        counted as ``inbox_full``: older ones may have been overwritten)."""
+        waiting = self._waiting()
+        if len(waiting) >= self._size:
+            detail = f"{len(waiting)} samples waited: the loop took them too late"
+            self._node.drop("inbox_full", self._key, detail)
+        return [m for s in waiting if (m := self._valid(s)) is not None]
+
+    def newest(self) -> M | None:
+        """The newest valid message of those that came since the last call (None: none did),
+        for an input read only when it is needed (a pose when a plan starts): the waiting
+        samples are decoded newest first until one is valid, so garbage cannot hide a good
+        one; the older ones are not decoded at all (counted in, and as ``unread``)."""
+        waiting = self._waiting()
+        for k, sample in enumerate(reversed(waiting)):
+            if (message := self._valid(sample)) is not None:
+                older = len(waiting) - k - 1
+                if older:
+                    self._node.metrics.count_in(self._key, older)
+                    self._node.metrics.drop_n("unread", older)
+                return message
+        return None
 
 
 class Node:
@@ -214,6 +261,16 @@ class Node:
                     return
 
         self._start_thread(pump, f"{self.service}:{name}")
+
+    def inbox(self, key: str, message_type: type[M], size: int = LATEST_RING) -> Inbox[M]:
+        """``key``'s samples kept for a loop of the service's own to take (``Inbox.take``), with
+        no callback and no thread: no wake-up per message, and the loop applies them at a point
+        of its choosing (the sim's physics loop, head commands between two steps). At most
+        ``size`` wait; when the loop falls behind, the oldest go, counted as ``overflow``."""
+        ring = zenoh.handlers.RingChannel(size)
+        subscriber = self.session.declare_subscriber(key, ring)
+        self._subscribers.append(subscriber)
+        return Inbox(self, subscriber, message_type, size)
 
     def serve(
         self,

@@ -23,6 +23,9 @@ log = logging.getLogger("avs.realtime")
 #: SCHED_RR priority (1-99): above every ordinary thread, below the kernel's own
 RR_PRIORITY = 10
 NICE = -10
+#: the nice of the camera-rate path (perception's worker): after the real-time loops, before
+#: rendering, tools and the map. A frame perceived late costs the whole pipeline its rate.
+FOREGROUND = -5
 #: the nice of deferrable work (map integration, fusion): it yields to perception and rendering,
 #: which yield to the real-time loops
 BACKGROUND = 10
@@ -71,6 +74,21 @@ def ordinary(nice: int = 0) -> None:
         os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     with contextlib.suppress(AttributeError, PermissionError, OSError):
         os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), nice)
+
+
+def foreground(what: str) -> bool:
+    """The calling thread at ordinary scheduling and nice ``FOREGROUND`` where permitted (a
+    negative nice needs root or CAP_SYS_NICE); says which in one log line."""
+    ordinary(FOREGROUND)
+    try:
+        granted = os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == FOREGROUND
+    except (AttributeError, OSError):
+        granted = False
+    if granted:
+        log.info("%s runs at nice %d", what, FOREGROUND)
+    else:
+        log.warning("%s runs at nice 0: a negative nice needs root or CAP_SYS_NICE", what)
+    return granted
 
 
 def os_thread_name(name: str) -> None:

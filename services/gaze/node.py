@@ -129,8 +129,11 @@ class GazeNode:
         k = node.keys
         self.out_head = node.publisher(k.cmd_head())
         self.out_ego = node.publisher(k.egosphere())
-        node.subscribe(k.joints(), JointState, self.on_joints)
-        node.subscribe(k.base_state(), BasePose, self.on_base)
+        # the joint states and odometry (200 Hz each) wait for the control loop, which takes
+        # them before each step: no thread woken per state (the IMU drives the loop; states
+        # without IMU have no step to serve)
+        self.joint_states = node.inbox(k.joints(), JointState, size=64)
+        self.base_states = node.inbox(k.base_state(), BasePose, size=64)
         node.subscribe(k.pose_correction(), PoseCorrection, self.on_correction)
         node.subscribe(k.gaze_target(), GazeTarget, self.on_target)
         node.subscribe(k.observation(), SceneObservation, self.on_observation)  # each one counts
@@ -262,8 +265,12 @@ class GazeNode:
         self.node.metrics.gauge("blobs", len(blobs))
 
     def on_imu(self, imu: ImuSample) -> None:
-        """One control step per IMU sample."""
+        """One control step per IMU sample, after the states that came since the last."""
         self.imu_wall = arrived = time.monotonic()
+        for js in self.joint_states.take():
+            self.on_joints(js)
+        for b in self.base_states.take():
+            self.on_base(b)
         if self.imu_seq is not None and imu.seq > self.imu_seq + 1:  # stale ones, not taken
             self.imu_skipped += imu.seq - self.imu_seq - 1
             self.node.metrics.gauge("imu_skipped", self.imu_skipped)

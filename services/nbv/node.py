@@ -70,7 +70,8 @@ class NbvNode:
         self.base: BasePose | None = None
         self.T_world_odom: np.ndarray | None = None  # memory/pose_correction
         k = node.keys
-        node.subscribe(k.base_state(), BasePose, self.on_base, latest_only=True)
+        # the odometry (200 Hz) is read when a plan starts: only then is the newest decoded
+        self.base_states = node.inbox(k.base_state(), BasePose)
         node.subscribe(k.pose_correction(), PoseCorrection, self.on_correction)
         self.out_candidates = node.publisher(k.candidates())
         self.out_next = node.publisher(k.next_view())
@@ -134,15 +135,15 @@ class NbvNode:
             gains[idx] = answers[i]
         return gains
 
-    def on_base(self, pose: BasePose) -> None:
-        self.base = pose
-
     def on_correction(self, msg: PoseCorrection) -> None:
         self.T_world_odom = np.asarray(msg.T_world_odom, float)
 
     def _current(self) -> tuple[float, float, float]:
         deadline = time.monotonic() + 10
-        while self.base is None and time.monotonic() < deadline:
+        while True:
+            self.base = self.base_states.newest() or self.base
+            if self.base is not None or time.monotonic() > deadline:
+                break
             time.sleep(0.01)
         if self.base is None:
             raise RuntimeError("no state/base received: is the sim running?")

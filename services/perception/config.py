@@ -23,3 +23,8 @@ class PerceptionSettings(ServiceSettings):
     queue: int = Field(
         2, ge=1, description="frames this worker owns and has not begun, at most (older: stale)"
     )
+    realtime: bool = Field(
+        True,
+        description="the worker at nice -5 where permitted: after the real-time loops, before "
+        "rendering, tools and the map",
+    )

@@ -20,6 +20,7 @@ from schemas.codec import peek
 from services.common.frames import usable_depth_frame
 from services.common.membership import Members
 from services.common.node import Node
+from services.common.realtime import foreground
 from services.perception.config import PerceptionSettings
 from services.perception.pipeline import Perception, PerceptionConfig, observation
 
@@ -70,6 +71,8 @@ class PerceptionNode:
             self.ready.notify()
 
     def work(self) -> None:
+        if self.settings.realtime:
+            foreground("perception's worker")
         while not self.node.stopping:
             with self.ready:
                 if not self.pending and not self.ready.wait(0.2):

@@ -110,7 +110,14 @@ class SimNode:
         self.seq: dict[str, int] = {}
         self._gt_cache: tuple[np.ndarray, list, list] | None = None
         node.subscribe(k.cmd_base(), (BaseGoal, BaseVelocity), self.on_cmd_base)
-        node.subscribe(k.cmd_head(), HeadCommand, self.on_cmd_head)
+        # on the wall clock, head commands (1 kHz from the gaze) wait for the physics loop,
+        # which applies them between two steps: no thread woken per command, no lock handed
+        # back and forth; in lockstep each is applied as it comes (the driver steps after)
+        self.head_commands = None
+        if settings.lockstep:
+            node.subscribe(k.cmd_head(), HeadCommand, self.on_head_command)
+        else:
+            self.head_commands = node.inbox(k.cmd_head(), HeadCommand, size=64)
         node.serve(k.sim_control(), self.on_control, SimControl)
         node.serve(k.ground_truth(), self.on_ground_truth, GroundTruthQuery)
         self.worker = RenderWorker(self)
@@ -152,6 +159,7 @@ class SimNode:
             self._every(self.settings.state_rate),
         )
         for _ in range(n):
+            self.apply_head_commands()
             w.step()
             if w.steps % imu_every == 0:
                 self.publish_imu()
@@ -170,6 +178,8 @@ class SimNode:
             if self.paused or w is not world:  # paused, or reset to a new world
                 wall0, sim0, world = time.monotonic(), w.time, w
                 if self.paused:
+                    with self.lock:  # the newest command waits for the resume in the world
+                        self.apply_head_commands()
                     time.sleep(0.01)
                 continue
             target = sim0 + (time.monotonic() - wall0) * speed
@@ -275,9 +285,20 @@ class SimNode:
             else:
                 self.world.set_base_velocity(cmd.v_x, cmd.v_y, cmd.v_yaw, cmd.timeout)
 
-    def on_cmd_head(self, cmd: HeadCommand) -> None:
+    def apply_head_commands(self) -> None:
+        """The head commands that came since the last step, in order (lock held)."""
+        if self.head_commands is not None:
+            for cmd in self.head_commands.take():
+                self.on_cmd_head(cmd)
+
+    def on_head_command(self, cmd: HeadCommand) -> None:
+        """A head command as it comes (lockstep)."""
         with self.lock:
-            unknown = self.world.command_joints(cmd.names, cmd.mode, cmd.values)
+            self.on_cmd_head(cmd)
+
+    def on_cmd_head(self, cmd: HeadCommand) -> None:
+        """Apply one head command (lock held)."""
+        unknown = self.world.command_joints(cmd.names, cmd.mode, cmd.values)
         if unknown and self.node.metrics.drop("unknown_joint"):
             log.warning(
                 "ignoring commands for unknown joints %s (known: %s)",
