@@ -145,9 +145,16 @@ def test_gaze_node_holds_the_cup_while_the_hip_swings_and_holds_still_without_im
     # the sim pauses: no IMU, so the head is held (one zero command) and the node says so
     control(client, op="pause")
     wait_for(lambda: metrics(client).extra.get("holding") == 1, 5, "gaze to hold the head")
-    with lock:
-        last = commands[-1]
-    assert last.source == "gaze" and not np.any(last.values)
+
+    def last() -> HeadCommand:
+        with lock:
+            return commands[-1]
+
+    # (the metrics' answer may overtake the zero command on its way to this subscriber)
+    wait_for(lambda: not np.any(last().values), 5, "the zero command")
+    held = len(commands)
+    time.sleep(0.5)  # and nothing moves the head after it
+    assert last().source == "gaze" and len(commands) == held
     for s in subs:
         s.undeclare()
     assert gaze.poll() is None
