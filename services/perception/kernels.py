@@ -227,6 +227,122 @@ def score_spheres(X, N, subset, centers, radii, dist, cos_min):
     return out
 
 
+@njit(cache=True, nogil=True)
+def cylinder_hypotheses(X, N, i, j, sin_min, r_min, r_max):
+    """Cylinders from pairs of oriented points (``ransac.fit_cylinder``): the axis n1 × n2
+    (pairs less than ``sin_min`` apart in normal dropped), the centre where the two normal
+    lines come closest across the axis, the radius from it to p1, kept within (r_min, r_max).
+    Returns (centers, axes, radii)."""
+    k = i.shape[0]
+    centers, axes, radii = np.empty((k, 3)), np.empty((k, 3)), np.empty(k)
+    m = 0
+    for h in range(k):
+        p1, n1, p2, n2 = X[i[h]], N[i[h]], X[j[h]], N[j[h]]
+        ax = n1[1] * n2[2] - n1[2] * n2[1]
+        ay = n1[2] * n2[0] - n1[0] * n2[2]
+        az = n1[0] * n2[1] - n1[1] * n2[0]
+        s = math.sqrt(ax * ax + ay * ay + az * az)
+        if not s > sin_min:
+            continue
+        ax, ay, az = ax / s, ay / s, az / s
+        # the normals and the points' offset projected across the axis
+        t1 = n1[0] * ax + n1[1] * ay + n1[2] * az
+        m1 = (n1[0] - t1 * ax, n1[1] - t1 * ay, n1[2] - t1 * az)
+        t2 = n2[0] * ax + n2[1] * ay + n2[2] * az
+        m2 = (n2[0] - t2 * ax, n2[1] - t2 * ay, n2[2] - t2 * az)
+        dx, dy, dz = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
+        tw = dx * ax + dy * ay + dz * az
+        w = (dx - tw * ax, dy - tw * ay, dz - tw * az)
+        a = m1[0] * m1[0] + m1[1] * m1[1] + m1[2] * m1[2]
+        b = m1[0] * m2[0] + m1[1] * m2[1] + m1[2] * m2[2]
+        c = m2[0] * m2[0] + m2[1] * m2[1] + m2[2] * m2[2]
+        e = m1[0] * w[0] + m1[1] * w[1] + m1[2] * w[2]
+        f = m2[0] * w[0] + m2[1] * w[1] + m2[2] * w[2]
+        den = a * c - b * b
+        if not den > 1e-9:
+            continue
+        t = (b * f - c * e) / den
+        cx, cy, cz = p1[0] + t * n1[0], p1[1] + t * n1[1], p1[2] + t * n1[2]
+        vx, vy, vz = p1[0] - cx, p1[1] - cy, p1[2] - cz
+        tv = vx * ax + vy * ay + vz * az
+        rx, ry, rz = vx - tv * ax, vy - tv * ay, vz - tv * az
+        r = math.sqrt(rx * rx + ry * ry + rz * rz)
+        if not (r > r_min and r < r_max):
+            continue
+        centers[m, 0], centers[m, 1], centers[m, 2] = cx, cy, cz
+        axes[m, 0], axes[m, 1], axes[m, 2] = ax, ay, az
+        radii[m] = r
+        m += 1
+    return centers[:m], axes[:m], radii[:m]
+
+
+@njit(cache=True, nogil=True)
+def sphere_hypotheses(X, N, i, j, r_min, r_max):
+    """Spheres from pairs of oriented points (``ransac.fit_sphere``): the centre midway between
+    the closest points of the two normal lines, kept where those lie within a fifth of the
+    radius of each other and the radius within (r_min, r_max). Returns (centers, radii)."""
+    k = i.shape[0]
+    centers, radii = np.empty((k, 3)), np.empty(k)
+    m = 0
+    for h in range(k):
+        p1, n1, p2, n2 = X[i[h]], N[i[h]], X[j[h]], N[j[h]]
+        wx, wy, wz = p1[0] - p2[0], p1[1] - p2[1], p1[2] - p2[2]
+        a = n1[0] * n1[0] + n1[1] * n1[1] + n1[2] * n1[2]
+        b = n1[0] * n2[0] + n1[1] * n2[1] + n1[2] * n2[2]
+        c = n2[0] * n2[0] + n2[1] * n2[1] + n2[2] * n2[2]
+        e = n1[0] * wx + n1[1] * wy + n1[2] * wz
+        f = n2[0] * wx + n2[1] * wy + n2[2] * wz
+        den = a * c - b * b
+        if not den > 1e-6:
+            continue
+        t, s = (b * f - c * e) / den, (a * f - b * e) / den
+        q1 = (p1[0] + t * n1[0], p1[1] + t * n1[1], p1[2] + t * n1[2])
+        q2 = (p2[0] + s * n2[0], p2[1] + s * n2[1], p2[2] + s * n2[2])
+        cx, cy, cz = (q1[0] + q2[0]) / 2, (q1[1] + q2[1]) / 2, (q1[2] + q2[2]) / 2
+        d1 = math.sqrt((p1[0] - cx) ** 2 + (p1[1] - cy) ** 2 + (p1[2] - cz) ** 2)
+        d2 = math.sqrt((p2[0] - cx) ** 2 + (p2[1] - cy) ** 2 + (p2[2] - cz) ** 2)
+        r = (d1 + d2) / 2
+        gap = math.sqrt((q1[0] - q2[0]) ** 2 + (q1[1] - q2[1]) ** 2 + (q1[2] - q2[2]) ** 2)
+        if not (gap < 0.2 * r and r > r_min and r < r_max):
+            continue
+        centers[m, 0], centers[m, 1], centers[m, 2] = cx, cy, cz
+        radii[m] = r
+        m += 1
+    return centers[:m], radii[:m]
+
+
+@njit(cache=True, nogil=True)
+def cylinder_inliers(X, N, center, axis, radius, dist, cos_min):
+    """The points within ``dist`` of the cylinder whose normal is within the angle of the
+    radial direction (``ransac.cylinder_residuals`` thresholded), as a mask."""
+    n = X.shape[0]
+    out = np.zeros(n, np.bool_)
+    cx, cy, cz = center[0], center[1], center[2]
+    ax, ay, az = axis[0], axis[1], axis[2]
+    for p in range(n):
+        vx, vy, vz = X[p, 0] - cx, X[p, 1] - cy, X[p, 2] - cz
+        t = vx * ax + vy * ay + vz * az
+        rx, ry, rz = vx - t * ax, vy - t * ay, vz - t * az
+        r = math.sqrt(rx * rx + ry * ry + rz * rz)
+        if abs(r - radius) < dist:
+            cos = abs(N[p, 0] * rx + N[p, 1] * ry + N[p, 2] * rz) / max(r, 1e-9)
+            out[p] = cos > cos_min
+    return out
+
+
+@njit(cache=True, nogil=True)
+def sphere_inliers(X, N, center, radius, dist, cos_min):
+    """``ransac.sphere_residuals`` thresholded, as a mask."""
+    n = X.shape[0]
+    out = np.zeros(n, np.bool_)
+    for p in range(n):
+        vx, vy, vz = X[p, 0] - center[0], X[p, 1] - center[1], X[p, 2] - center[2]
+        r = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if abs(r - radius) < dist:
+            out[p] = abs(N[p, 0] * vx + N[p, 1] * vy + N[p, 2] * vz) / max(r, 1e-9) > cos_min
+    return out
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _grey(r: float, g: float, b: float, limit: float) -> bool:
     """Saturation (max − min) / max below ``limit``."""

@@ -251,11 +251,12 @@ def _choose(
             continue
         if fit.kind == "plane":
             res = ransac.plane_residuals(X, N, fit.normal, fit.d)
+            fit.inliers = (res[0] < dist) & (res[1] > cos_min)
         elif fit.kind == "cylinder":
-            res = ransac.cylinder_residuals(X, N, fit.center, fit.axis, fit.radius)
+            fit.inliers = kernels.cylinder_inliers(X, N, fit.center, fit.axis, fit.radius, dist,
+                                                   cos_min)  # fmt: skip
         else:
-            res = ransac.sphere_residuals(X, N, fit.center, fit.radius)
-        fit.inliers = (res[0] < dist) & (res[1] > cos_min)
+            fit.inliers = kernels.sphere_inliers(X, N, fit.center, fit.radius, dist, cos_min)
         if (
             fit.kind == "cylinder"
             and ransac.cylinder_arc(N[fit.inliers], fit.axis) < config.min_arc_deg

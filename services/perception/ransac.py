@@ -17,6 +17,7 @@ from services.perception import kernels
 from services.perception.obb import cross
 
 SUBSET = 500  # points scoring the hypotheses
+SIN_MIN = float(np.sin(np.radians(5)))  # cylinder pairs' normals at least 5° apart
 
 
 @dataclass
@@ -59,10 +60,6 @@ def sphere_residuals(X, N, center, radius):
     r = np.linalg.norm(v, axis=1)
     cos = np.abs(np.einsum("ij,ij->i", N, v)) / np.maximum(r, 1e-9)
     return np.abs(r - radius), cos
-
-
-def _inliers(res, cos, dist, cos_min):
-    return (res < dist) & (cos > cos_min)
 
 
 # -- least-squares refinement ------------------------------------------------------------------
@@ -166,38 +163,22 @@ def fit_cylinder(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit |
     if n < 10:
         return None
     i, j = _pairs(rng, n, hypotheses)
-    p1, n1, p2, n2 = X[i], N[i], X[j], N[j]
-    axes = np.cross(n1, n2)
-    s = np.linalg.norm(axes, axis=1)
-    ok = s > np.sin(np.radians(5))
-    if not ok.any():
+    # axis n1 × n2, centre where the normal lines meet across it (compiled: 32 hypotheses in
+    # numpy were some 20 array operations of per-call overhead)
+    centers, axes, radii = kernels.cylinder_hypotheses(X, N, i, j, SIN_MIN, r_min, r_max)
+    if len(radii) == 0:
         return None
-    p1, n1, p2, n2, axes = p1[ok], n1[ok], p2[ok], n2[ok], axes[ok] / s[ok, None]
-    # closest points of the normal lines, in the plane across the axis
-    proj = lambda v: v - np.einsum("ij,ij->i", v, axes)[:, None] * axes  # noqa: E731
-    m1, m2, w = proj(n1), proj(n2), proj(p1 - p2)
-    a, b, c = (m1 * m1).sum(1), (m1 * m2).sum(1), (m2 * m2).sum(1)
-    e, f = (m1 * w).sum(1), (m2 * w).sum(1)
-    den = a * c - b * b
-    good = den > 1e-9
-    t = np.where(good, (b * f - c * e) / np.where(good, den, 1), 0)
-    centers = p1 + t[:, None] * n1
-    radii = np.linalg.norm(proj(p1 - centers), axis=1)
-    good &= (radii > r_min) & (radii < r_max)
-    if not good.any():
-        return None
-    centers, axes, radii = centers[good], axes[good], radii[good]
     score = kernels.score_cylinders(X, N, _subset(rng, n), centers, axes, radii, dist, cos_min)
     best = int(np.argmax(score))
     center, axis, radius = centers[best], axes[best], float(radii[best])
     for _ in range(2):
-        mask = _inliers(*cylinder_residuals(X, N, center, axis, radius), dist, cos_min)
+        mask = kernels.cylinder_inliers(X, N, center, axis, radius, dist, cos_min)
         if mask.sum() < 10:
             return None
         center, axis, radius = refine_cylinder(X[mask], N[mask], axis)
         if not r_min < radius < r_max:
             return None
-    mask = _inliers(*cylinder_residuals(X, N, center, axis, radius), dist, cos_min)
+    mask = kernels.cylinder_inliers(X, N, center, axis, radius, dist, cos_min)
     return Fit("cylinder", mask, center=center, axis=axis, radius=radius)
 
 
@@ -206,32 +187,20 @@ def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit | N
     if n < 10:
         return None
     i, j = _pairs(rng, n, hypotheses)
-    p1, n1, p2, n2 = X[i], N[i], X[j], N[j]
-    w = p1 - p2
-    a, b, c = (n1 * n1).sum(1), (n1 * n2).sum(1), (n2 * n2).sum(1)
-    e, f = (n1 * w).sum(1), (n2 * w).sum(1)
-    den = a * c - b * b
-    good = den > 1e-6
-    den = np.where(good, den, 1)
-    t, s = (b * f - c * e) / den, (a * f - b * e) / den
-    q1, q2 = p1 + t[:, None] * n1, p2 + s[:, None] * n2
-    centers = (q1 + q2) / 2
-    radii = (np.linalg.norm(p1 - centers, axis=1) + np.linalg.norm(p2 - centers, axis=1)) / 2
-    good &= (np.linalg.norm(q1 - q2, axis=1) < 0.2 * radii) & (radii > r_min) & (radii < r_max)
-    if not good.any():
+    centers, radii = kernels.sphere_hypotheses(X, N, i, j, r_min, r_max)
+    if len(radii) == 0:
         return None
-    centers, radii = centers[good], radii[good]
     score = kernels.score_spheres(X, N, _subset(rng, n), centers, radii, dist, cos_min)
     best = int(np.argmax(score))
     center, radius = centers[best], float(radii[best])
     for _ in range(2):
-        mask = _inliers(*sphere_residuals(X, N, center, radius), dist, cos_min)
+        mask = kernels.sphere_inliers(X, N, center, radius, dist, cos_min)
         if mask.sum() < 10:
             return None
         center, radius = refine_sphere(X[mask])
         if not r_min < radius < r_max:
             return None
-    mask = _inliers(*sphere_residuals(X, N, center, radius), dist, cos_min)
+    mask = kernels.sphere_inliers(X, N, center, radius, dist, cos_min)
     return Fit("sphere", mask, center=center, radius=radius)
 
 

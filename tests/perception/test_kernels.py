@@ -95,3 +95,92 @@ def test_grid_labels_number_components_as_scipy_does(seed):
     labels, n_ref = ndimage.label(grid, structure=np.ones((3, 3), bool))
     assert n == n_ref > 1
     assert (own == labels[rows - rows.min(), cols - cols.min()]).all()
+
+
+def _cylinder_hypotheses_numpy(X, N, i, j, r_min, r_max):
+    """``fit_cylinder``'s hypotheses as numpy computed them before the kernel."""
+    p1, n1, p2, n2 = X[i], N[i], X[j], N[j]
+    axes = np.cross(n1, n2)
+    s = np.linalg.norm(axes, axis=1)
+    ok = s > np.sin(np.radians(5))
+    p1, n1, p2, n2, axes = p1[ok], n1[ok], p2[ok], n2[ok], axes[ok] / s[ok, None]
+    proj = lambda v: v - np.einsum("ij,ij->i", v, axes)[:, None] * axes  # noqa: E731
+    m1, m2, w = proj(n1), proj(n2), proj(p1 - p2)
+    a, b, c = (m1 * m1).sum(1), (m1 * m2).sum(1), (m2 * m2).sum(1)
+    e, f = (m1 * w).sum(1), (m2 * w).sum(1)
+    den = a * c - b * b
+    good = den > 1e-9
+    t = np.where(good, (b * f - c * e) / np.where(good, den, 1), 0)
+    centers = p1 + t[:, None] * n1
+    radii = np.linalg.norm(proj(p1 - centers), axis=1)
+    good &= (radii > r_min) & (radii < r_max)
+    return centers[good], axes[good], radii[good]
+
+
+def _sphere_hypotheses_numpy(X, N, i, j, r_min, r_max):
+    p1, n1, p2, n2 = X[i], N[i], X[j], N[j]
+    w = p1 - p2
+    a, b, c = (n1 * n1).sum(1), (n1 * n2).sum(1), (n2 * n2).sum(1)
+    e, f = (n1 * w).sum(1), (n2 * w).sum(1)
+    den = a * c - b * b
+    good = den > 1e-6
+    den = np.where(good, den, 1)
+    t, s = (b * f - c * e) / den, (a * f - b * e) / den
+    q1, q2 = p1 + t[:, None] * n1, p2 + s[:, None] * n2
+    centers = (q1 + q2) / 2
+    radii = (np.linalg.norm(p1 - centers, axis=1) + np.linalg.norm(p2 - centers, axis=1)) / 2
+    good &= (np.linalg.norm(q1 - q2, axis=1) < 0.2 * radii) & (radii > r_min) & (radii < r_max)
+    return centers[good], radii[good]
+
+
+def _oriented_points(seed: int, curved: str) -> tuple[np.ndarray, np.ndarray]:
+    """400 noisy points with normals on a cylinder or sphere patch, or on a plane."""
+    rng = np.random.default_rng(seed)
+    u, v = rng.uniform(-1.0, 1.0, 400), rng.uniform(-0.6, 0.6, 400)
+    if curved == "cylinder":
+        N = np.column_stack([np.cos(u), np.sin(u), np.zeros(400)])
+        X = 0.05 * N + np.column_stack([np.zeros((400, 2)), v / 5])
+    elif curved == "sphere":
+        N = np.column_stack([np.cos(u) * np.cos(v), np.sin(u) * np.cos(v), np.sin(v)])
+        X = 0.06 * N
+    else:
+        N = np.tile([0.0, 0.0, 1.0], (400, 1))
+        X = np.column_stack([u / 5, v / 5, np.zeros(400)])
+    X = X + np.array([1.0, 0.2, 0.8]) + rng.normal(scale=0.001, size=X.shape)
+    N = N + rng.normal(scale=0.05, size=N.shape)
+    return X, N / np.linalg.norm(N, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("shape", ["cylinder", "sphere", "plane"])
+@pytest.mark.parametrize("seed", range(3))
+def test_curved_hypotheses_and_inliers_are_numpys(shape, seed):
+    """The compiled hypotheses of the cylinder and sphere RANSAC are numpy's (the same ones,
+    in order, to 1e-12), and so are the compiled inlier masks of a hypothesis."""
+    from services.perception import kernels
+
+    X, N = _oriented_points(seed, shape)
+    rng = np.random.default_rng(seed)
+    i, j = ransac._pairs(rng, len(X), 64)
+    got = kernels.cylinder_hypotheses(X, N, i, j, ransac.SIN_MIN, 0.01, 0.5)
+    want = _cylinder_hypotheses_numpy(X, N, i, j, 0.01, 0.5)
+    assert len(got[2]) == len(want[2]) and (shape != "cylinder" or len(want[2]) > 20)
+    for g, w in zip(got, want, strict=True):
+        assert np.abs(g - w).max(initial=0) < 1e-12
+    got_s = kernels.sphere_hypotheses(X, N, i, j, 0.01, 0.5)
+    want_s = _sphere_hypotheses_numpy(X, N, i, j, 0.01, 0.5)
+    assert len(got_s[1]) == len(want_s[1]) and (shape != "sphere" or len(want_s[1]) > 20)
+    for g, w in zip(got_s, want_s, strict=True):
+        assert np.abs(g - w).max(initial=0) < 1e-12
+    for h in range(min(5, len(want[2]))):
+        c, a, r = want[0][h], want[1][h], float(want[2][h])
+        res, cos = ransac.cylinder_residuals(X, N, c, a, r)
+        mask = kernels.cylinder_inliers(X, N, c, a, r, 0.004, 0.9)
+        assert (mask == ((res < 0.004) & (cos > 0.9))).all()
+    for h in range(min(5, len(want_s[1]))):
+        c, r = want_s[0][h], float(want_s[1][h])
+        res, cos = ransac.sphere_residuals(X, N, c, r)
+        mask = kernels.sphere_inliers(X, N, c, r, 0.004, 0.9)
+        assert (mask == ((res < 0.004) & (cos > 0.9))).all()
+    fit = ransac.fit_cylinder(X, N, rng, 0.004, 0.9, 0.01, 0.5)
+    if shape == "cylinder":  # and the whole fit still finds the cylinder
+        assert fit is not None and abs(fit.radius - 0.05) < 0.002 and fit.count > 300
