@@ -266,7 +266,8 @@ class Node:
         """``key``'s samples kept for a loop of the service's own to take (``Inbox.take``), with
         no callback and no thread: no wake-up per message, and the loop applies them at a point
         of its choosing (the sim's physics loop, head commands between two steps). At most
-        ``size`` wait; when the loop falls behind, the oldest go, counted as ``overflow``."""
+        ``size`` wait; when the loop falls behind, the oldest are overwritten (``take`` counts a
+        full ring as ``inbox_full``)."""
         ring = zenoh.handlers.RingChannel(size)
         subscriber = self.session.declare_subscriber(key, ring)
         self._subscribers.append(subscriber)

@@ -193,6 +193,14 @@ def plane_ransac(X, N, triples, subset, dist, cos_min, refinements):
     return best_n, best_d, mask, True
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _radial(vx: float, vy: float, vz: float, ax: float, ay: float, az: float):
+    """The part of v across the unit axis a, and its length: (rx, ry, rz, |r|)."""
+    t = vx * ax + vy * ay + vz * az
+    rx, ry, rz = vx - t * ax, vy - t * ay, vz - t * az
+    return rx, ry, rz, math.sqrt(rx * rx + ry * ry + rz * rz)
+
+
 @njit(cache=True, nogil=True)
 def score_cylinders(X, N, subset, centers, axes, radii, dist, cos_min):
     """Inliers of each cylinder hypothesis among ``subset``."""
@@ -201,10 +209,7 @@ def score_cylinders(X, N, subset, centers, axes, radii, dist, cos_min):
         cx, cy, cz = centers[h, 0], centers[h, 1], centers[h, 2]
         ax, ay, az = axes[h, 0], axes[h, 1], axes[h, 2]
         for s in subset:
-            vx, vy, vz = X[s, 0] - cx, X[s, 1] - cy, X[s, 2] - cz
-            t = vx * ax + vy * ay + vz * az
-            rx, ry, rz = vx - t * ax, vy - t * ay, vz - t * az
-            r = math.sqrt(rx * rx + ry * ry + rz * rz)
+            rx, ry, rz, r = _radial(X[s, 0] - cx, X[s, 1] - cy, X[s, 2] - cz, ax, ay, az)
             if r < 1e-9 or abs(r - radii[h]) >= dist:
                 continue
             if abs(N[s, 0] * rx + N[s, 1] * ry + N[s, 2] * rz) / r > cos_min:
@@ -263,10 +268,7 @@ def cylinder_hypotheses(X, N, i, j, sin_min, r_min, r_max):
             continue
         t = (b * f - c * e) / den
         cx, cy, cz = p1[0] + t * n1[0], p1[1] + t * n1[1], p1[2] + t * n1[2]
-        vx, vy, vz = p1[0] - cx, p1[1] - cy, p1[2] - cz
-        tv = vx * ax + vy * ay + vz * az
-        rx, ry, rz = vx - tv * ax, vy - tv * ay, vz - tv * az
-        r = math.sqrt(rx * rx + ry * ry + rz * rz)
+        r = _radial(p1[0] - cx, p1[1] - cy, p1[2] - cz, ax, ay, az)[3]
         if not (r > r_min and r < r_max):
             continue
         centers[m, 0], centers[m, 1], centers[m, 2] = cx, cy, cz
@@ -320,10 +322,7 @@ def cylinder_inliers(X, N, center, axis, radius, dist, cos_min):
     cx, cy, cz = center[0], center[1], center[2]
     ax, ay, az = axis[0], axis[1], axis[2]
     for p in range(n):
-        vx, vy, vz = X[p, 0] - cx, X[p, 1] - cy, X[p, 2] - cz
-        t = vx * ax + vy * ay + vz * az
-        rx, ry, rz = vx - t * ax, vy - t * ay, vz - t * az
-        r = math.sqrt(rx * rx + ry * ry + rz * rz)
+        rx, ry, rz, r = _radial(X[p, 0] - cx, X[p, 1] - cy, X[p, 2] - cz, ax, ay, az)
         if abs(r - radius) < dist:
             cos = abs(N[p, 0] * rx + N[p, 1] * ry + N[p, 2] * rz) / max(r, 1e-9)
             out[p] = cos > cos_min
