@@ -14,6 +14,7 @@ from services.scene_memory.fusion import Fusion, FusionConfig, Update, voxel_key
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap
 from services.scene_memory.registration import (
     RegistrationConfig,
+    RegistrationMap,
     camera_points,
     moved,
     register,
@@ -51,6 +52,11 @@ class SceneMemory:
     #: refused ones
     last_registration: dict | None = None
     registrations_refused: int = 0
+    #: what frames are registered against (``registration``): built as frames are integrated,
+    #: rebuilt from the registered cloud for a snapshot written before it existed
+    registration_map: RegistrationMap | None = None
+    #: whether the frame being integrated was placed by registration (or is the first)
+    _registered: bool = False
 
     def __init__(self, config: MemoryConfig | None = None) -> None:
         self.config = config or MemoryConfig()
@@ -110,6 +116,13 @@ class SceneMemory:
         d = z[v, u].astype(np.float64)
         cam = np.column_stack([(2 * u - K.cx) / K.fx * d, (2 * v - K.cy) / K.fy * d, d])
         pts = cam @ T[:3, :3].T + T[:3, 3]
+        if self.config.registration is not None and self._registered:
+            # only frames that registration placed (or the first, which defines the map): a
+            # refused frame, fused where odometry puts it, would give the next frame a
+            # misplaced copy of the scene to align to
+            t2 = time.perf_counter()
+            self._registration_map().add(pts)
+            self.timings_ms["registration_map_ms"] = (time.perf_counter() - t2) * 1e3
         rgb = (
             frame.rgb[::2, ::2][v, u]
             if frame.rgb is not None
@@ -130,10 +143,11 @@ class SceneMemory:
         T_odom = np.asarray(frame.T_world_camera, float)
         prior = T_odom if self.T_world_odom is None else self.T_world_odom @ T_odom
         c = self.config.registration
-        if c is None or len(self.cloud) == 0:
+        self._registered = len(self.cloud) == 0
+        if c is None or self._registered:
             return prior
         pts = camera_points(frame.depth, frame.intrinsics, self.config.depth_min, max_range)
-        result = register(pts, prior, self.cloud.astype(np.float64), c)
+        result = register(pts, prior, self._registration_map(), c)
         self.last_registration = {
             "accepted": result.accepted, "reason": result.reason, "fitness": result.fitness,
             "rmse": result.rmse, "ms": result.ms, "stamp": frame.stamp,
@@ -143,7 +157,13 @@ class SceneMemory:
             self.registrations_refused += 1
             return prior
         self.T_world_odom = result.T_world_camera @ np.linalg.inv(T_odom)
+        self._registered = True
         return result.T_world_camera
+
+    def _registration_map(self) -> RegistrationMap:
+        if self.registration_map is None:
+            self.registration_map = RegistrationMap.of(self.cloud, self.config.registration)
+        return self.registration_map
 
     def fuse(self, obs: SceneObservation) -> Update:
         """Fuse an observation (Algorithm 2), moved into the registered map by the odometry's

@@ -42,7 +42,7 @@ from services.scene_memory.memory import (
 )
 from services.scene_memory.occupancy import OccupancyConfig
 from services.scene_memory.persistence import Store
-from services.scene_memory.registration import RegistrationConfig
+from services.scene_memory.registration import RegistrationConfig, warm_up
 
 log = logging.getLogger("avs.scene_memory")
 
@@ -75,6 +75,8 @@ class SceneMemoryNode:
                                 lambda: node.stopping)  # fmt: skip
         if standby is None:
             raise SystemExit(0)  # stopped while standing by
+        if settings.registration:
+            warm_up()
         self.store = Store(settings.data_dir)
         self.replay_s = 0.0  # time the updates since the last snapshot took to apply
         self.memory, self.n = self._restore()

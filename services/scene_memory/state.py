@@ -24,7 +24,7 @@ import numpy as np
 from pydantic import BaseModel
 
 from schemas import scene as scene_schemas
-from services.scene_memory import fusion, memory, occupancy, registration
+from services.scene_memory import fusion, memory, occupancy, registration, voxel_map
 
 MAGIC = b"AVS-SCENE-MEMORY\x00"
 VERSION = 1
@@ -42,6 +42,9 @@ ALLOWED: dict[str, type] = {
         occupancy.OccupancyMap,
         occupancy.OccupancyConfig,
         registration.RegistrationConfig,
+        registration.Pass,
+        registration.RegistrationMap,
+        voxel_map.VoxelMap,
     )
 }
 MODELS: dict[str, type[BaseModel]] = {

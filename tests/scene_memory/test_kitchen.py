@@ -30,10 +30,10 @@ def test_kitchen_orbit_of_20_views(tmp_path):
             "registration_ms"}  # fmt: skip
     assert keys <= set(views[0])
     last = views[-1]
-    # 6.4 mm, 0.08°; InlierIndex 0.93, OverlappingIndex 0.79 measured (0.94 and 0.82 with the
-    # true poses: registration against a cloud of noisy depth wanders by millimetres)
+    # issue 15's bounds; measured 2.9 mm, 0.08°, InlierIndex 0.94, OverlappingIndex 0.82 (the
+    # simulator's truth, without depth noise or drift: 0.97 and 0.84)
     assert last["pose_error_m"] <= 0.01 and last["pose_error_deg"] <= 0.5, last
-    assert last["inlier_index"] >= 0.9 and last["overlapping_index"] >= 0.77, last
+    assert last["inlier_index"] >= 0.9 and last["overlapping_index"] >= 0.8, last
     modified = [v["modified"] for v in views]
     assert sum(modified[10:]) < sum(modified[:10]), modified
     unknown = [v["unknown_voxels"] for v in views]
@@ -55,9 +55,9 @@ def fuse(tmp_path, *args: str) -> list[dict]:
 
 def test_registration_holds_the_kitchen_together_under_odometry_drift(tmp_path):
     """Eight orbit views with the odometry drifting (1.5 % of the ~6 m driven, 1° a turn):
-    registered, every view's camera pose stays within 1 cm and 0.5° of the truth (3.6 mm and
-    0.16° measured); unregistered, the last is 35 mm off and the model's overlap with the
-    truth falls (OverlappingIndex 0.79 → 0.57 measured)."""
+    registered, every view's camera pose stays within 1 cm and 0.5° of the truth (4.7 mm and
+    0.18° measured); unregistered, the last is 35 mm off and the model's overlap with the
+    truth falls (OverlappingIndex 0.80 → 0.57 measured)."""
     registered = fuse(tmp_path)
     unregistered = fuse(tmp_path, "--registration", "off")
     worst = max(v["pose_error_m"] for v in registered)
@@ -66,5 +66,5 @@ def test_registration_holds_the_kitchen_together_under_odometry_drift(tmp_path):
     drifted = unregistered[-1]["pose_error_m"]
     assert drifted > 0.02 and drifted > 4 * worst, (drifted, worst)
     last, bad = registered[-1], unregistered[-1]
-    assert last["inlier_index"] >= 0.88 and last["overlapping_index"] >= 0.75, last
+    assert last["inlier_index"] >= 0.9 and last["overlapping_index"] >= 0.78, last
     assert bad["overlapping_index"] < last["overlapping_index"] - 0.1, (bad, last)

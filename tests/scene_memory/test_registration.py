@@ -207,3 +207,55 @@ def test_a_moved_observation_keeps_its_geometry_consistent(updates):
         assert d1 == pytest.approx(d0, abs=1e-5)
         assert np.allclose(after.obb.center, T[:3, :3] @ before.obb.center + T[:3, 3])
     assert np.allclose(out.T_world_camera, T @ obs.T_world_camera)
+
+
+def test_the_registration_map_survives_a_snapshot(updates):
+    """A memory that registered five views, dumped and loaded as a snapshot is: the restored
+    map holds the same voxel sums (its planes, a cache, are refitted) and registers the sixth
+    view to the same pose."""
+    from services.scene_memory import state as state_file
+
+    frames = [m for kind, m in updates if kind == "frame"]
+    config = MemoryConfig(bounds_min=tuple(BOUNDS_MIN), bounds_max=tuple(BOUNDS_MAX),
+                          occupancy=OccupancyConfig(voxel=VOXEL),
+                          registration=RegistrationConfig())  # fmt: skip
+    memory = SceneMemory(config)
+    for f in frames[:5]:
+        memory.integrate(f)
+    restored, _ = state_file.load(state_file.dump(memory, 5))
+    for a, b in zip(memory.registration_map.levels, restored.registration_map.levels, strict=True):
+        assert len(a) == len(b) > 0
+        assert np.array_equal(a.stats[: len(a)], b.stats[: len(b)])
+    T_true = np.asarray(frames[5].T_world_camera)
+    T_prior = perturbed(T_true, np.random.default_rng(7), 0.05, 3.0)
+    pts = camera_points(frames[5].depth, frames[5].intrinsics, 0.35, 3.0)
+    poses = [register(pts, T_prior, m.registration_map).T_world_camera for m in (memory, restored)]
+    for T in poses:
+        moved, turned = pose_difference(T_true, T)
+        assert moved <= 0.005 and turned <= 0.3, (moved, turned)
+    assert pose_difference(*poses)[0] < 0.001
+
+
+def test_a_refused_frame_is_not_what_the_next_one_registers_to(updates):
+    """A frame whose odometry is 0.4 m off cannot be registered: it keeps its prior and is
+    fused there, but the registration map does not take its misplaced copy of the table, so
+    the next frame still registers to the true one."""
+    frames = [m for kind, m in updates if kind == "frame"]
+    config = MemoryConfig(bounds_min=tuple(BOUNDS_MIN), bounds_max=tuple(BOUNDS_MAX),
+                          occupancy=OccupancyConfig(voxel=VOXEL),
+                          registration=RegistrationConfig())  # fmt: skip
+    memory = SceneMemory(config)
+    memory.integrate(frames[0])
+    before = [len(level) for level in memory.registration_map.levels]
+    cloud = len(memory.cloud)
+    far = drift(1, 0.4, 0.0) @ np.asarray(frames[1].T_world_camera)
+    memory.integrate(frames[1].model_copy(update={"T_world_camera": far}))
+    assert not memory.last_registration["accepted"] and memory.registrations_refused == 1
+    assert [len(level) for level in memory.registration_map.levels] == before
+    assert len(memory.cloud) > cloud  # still fused, where odometry put it
+    T_true = np.asarray(frames[2].T_world_camera)
+    memory.integrate(frames[2].model_copy(update={"T_world_camera": drift(1, 0.02, 1.0) @ T_true}))
+    assert memory.last_registration["accepted"], memory.last_registration
+    T = memory.T_world_odom @ drift(1, 0.02, 1.0) @ T_true
+    moved, turned = pose_difference(T_true, T)
+    assert moved <= 0.005 and turned <= 0.3, (moved, turned)
