@@ -106,6 +106,9 @@ class ViewRecord:
     pose_error_deg: float = 0.0
     registration_ms: float = 0.0
     registration: str = ""  # "accepted", or why the frame kept its prior; "" when off
+    #: T_world_camera (4×4, rows) the map used, and the true one the truth is scored with
+    camera_pose_used: list[list[float]] = field(default_factory=list)
+    camera_pose_true: list[list[float]] = field(default_factory=list)
 
 
 @dataclass
@@ -227,6 +230,7 @@ class Episode:
             "AVS_SIM_LOCKSTEP": "true",
             "AVS_SIM_SEED": str(c.seed),
             "AVS_SIM_SENSORS": str(c.noise).lower(),
+            "AVS_SIM_NOISE": str(c.noise).lower(),
             "AVS_SCENE_MEMORY_REGISTRATION": str(c.registration).lower(),
             "AVS_SCENE_MEMORY_DATA_DIR": str(data_dir),
             "AVS_SCENE_MEMORY_FUSION": c.fusion,
@@ -429,6 +433,7 @@ class Episode:
                 stats.realised_volume if c.ig_measure == "volume" else stats.realised_rays,
                 scores.vertex_precision, scores.segments_per_body, scores.bodies_merged,
                 pose_error[0], pose_error[1], registration_ms, registration,
+                np.round(T_used, 6).tolist(), np.round(T_true, 6).tolist(),
             )  # fmt: skip
             result.views.append(record)
             self._check_gain(result.views)

@@ -37,7 +37,7 @@ def _episode_arguments(p: argparse.ArgumentParser) -> None:
         choices=["on", "off"],
         default="on",
         help="the robot's sensor models in the sim: depth noise, gyro noise and bias, encoders, "
-        "latency, odometry drift (off: the simulator's truth, depth noise alone)",
+        "latency, odometry drift (off: the simulator's truth)",
     )
     p.add_argument(
         "--registration", choices=["on", "off"], default=None,

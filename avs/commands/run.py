@@ -26,8 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
         "--noise", choices=["on", "off"], default="on",
-        help="the robot's sensor models (odometry drift, gyro, encoders; the scene memory "
-        "registers the views) or the simulator's truth",
+        help="the robot's sensor models (depth noise, odometry drift, gyro, encoders; the scene "
+        "memory registers the views) or the simulator's truth",
     )  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("runs/explore"))
     parser.set_defaults(func=_run)

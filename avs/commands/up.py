@@ -82,9 +82,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     parser.add_argument(
         "--noise", choices=["on", "off"], default="on",
-        help="the sim's sensor models (gyro, encoders, latency, odometry drift) and the scene "
-        "memory's view registration, or the simulator's truth (AVS_SIM_SENSORS and "
-        "AVS_SCENE_MEMORY_REGISTRATION, when set, win)",
+        help="the sim's sensor models (depth noise, gyro, encoders, latency, odometry drift) "
+        "and the scene memory's view registration, or the simulator's truth (AVS_SIM_NOISE, "
+        "AVS_SIM_SENSORS and AVS_SCENE_MEMORY_REGISTRATION, when set, win)",
     )  # fmt: skip
     parser.add_argument(
         "--clients", action="store_true",
@@ -115,8 +115,8 @@ def service_env(args: argparse.Namespace) -> dict[str, str]:
     """Settings the launcher hands to the services: the scene memory's data directory, and the
     sensor models with view registration (``--noise``) unless the environment says otherwise."""
     on = str(getattr(args, "noise", "on") == "on").lower()
-    noise = {k: on for k in ("AVS_SIM_SENSORS", "AVS_SCENE_MEMORY_REGISTRATION")
-             if k not in os.environ}  # fmt: skip
+    keys = ("AVS_SIM_NOISE", "AVS_SIM_SENSORS", "AVS_SCENE_MEMORY_REGISTRATION")
+    noise = {k: on for k in keys if k not in os.environ}
     return noise | {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
 
 
