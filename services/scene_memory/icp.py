@@ -207,6 +207,26 @@ def _moved(T: np.ndarray, p: np.ndarray, i: int) -> tuple[float, float, float]:
             T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3])  # fmt: skip
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _residual(
+    source: np.ndarray, i: int, T: np.ndarray, table: np.ndarray, index: np.ndarray,
+    stats: np.ndarray, voxel: float, planes: np.ndarray, fitted: np.ndarray, thickness: float,
+    d2: float, cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+) -> tuple[bool, float, float, float, float, float, float, float]:  # fmt: skip
+    """Point ``source[i]`` moved by ``T`` against the map: whether it has a match within
+    √``d2`` that has a plane, its point-to-plane residual, the plane's normal and the moved
+    point."""
+    cell, rows, means, plane = cache
+    x, y, z = _moved(T, source, i)
+    s, mx, my, mz = _match(table, stats, voxel, x, y, z, i, cell, rows, means)
+    if s < 0 or (mx - x) ** 2 + (my - y) ** 2 + (mz - z) ** 2 > d2:
+        return False, 0.0, 0.0, 0.0, 0.0, x, y, z
+    if not _plane(table, index, stats, voxel, s, planes, fitted, thickness, i, rows, plane):
+        return False, 0.0, 0.0, 0.0, 0.0, x, y, z
+    nx, ny, nz = plane[i, 0], plane[i, 1], plane[i, 2]
+    return True, nx * x + ny * y + nz * z + plane[i, 3], nx, ny, nz, x, y, z
+
+
 @njit(cache=True, nogil=True)
 def _exp(w: np.ndarray, t: np.ndarray) -> np.ndarray:
     """The rigid transform of a step (rotation vector ``w``, translation ``t``), 4×4."""
@@ -236,22 +256,16 @@ def icp(
     k2 = kernel * kernel
     d2 = max_distance * max_distance
     steps = 0
-    cell, rows, means, plane = cache
     for _ in range(iterations):
         steps += 1
         H = np.zeros((6, 6))
         g = np.zeros(6)
         J = np.empty(6)
         for i in range(source.shape[0]):
-            x, y, z = _moved(T, source, i)
-            s, mx, my, mz = _match(table, stats, voxel, x, y, z, i, cell, rows, means)
-            if s < 0 or (mx - x) ** 2 + (my - y) ** 2 + (mz - z) ** 2 > d2:
-                continue
-            if not _plane(table, index, stats, voxel, s, planes, fitted, thickness, i, rows, plane):
-                continue
-            nx, ny, nz = plane[i, 0], plane[i, 1], plane[i, 2]
-            r = nx * x + ny * y + nz * z + plane[i, 3]
-            if r * r >= k2:
+            ok, r, nx, ny, nz, x, y, z = _residual(
+                source, i, T, table, index, stats, voxel, planes, fitted, thickness, d2, cache
+            )
+            if not ok or r * r >= k2:
                 continue
             u = 1.0 - r * r / k2
             w = u * u * weights[i]
@@ -287,15 +301,12 @@ def residuals(
     r = np.zeros(n)
     nrm = np.zeros((n, 3))
     d2 = max_distance * max_distance
-    cell, rows, means, plane = cache
     for i in range(n):
-        x, y, z = _moved(T, source, i)
-        s, mx, my, mz = _match(table, stats, voxel, x, y, z, i, cell, rows, means)
-        if s < 0 or (mx - x) ** 2 + (my - y) ** 2 + (mz - z) ** 2 > d2:
-            continue
-        if not _plane(table, index, stats, voxel, s, planes, fitted, thickness, i, rows, plane):
-            continue
-        matched[i] = True
-        nrm[i] = plane[i, :3]
-        r[i] = nrm[i, 0] * x + nrm[i, 1] * y + nrm[i, 2] * z + plane[i, 3]
+        ok, ri, nx, ny, nz, _, _, _ = _residual(
+            source, i, T, table, index, stats, voxel, planes, fitted, thickness, d2, cache
+        )
+        if ok:
+            matched[i] = True
+            r[i] = ri
+            nrm[i, 0], nrm[i, 1], nrm[i, 2] = nx, ny, nz
     return matched, r, nrm
