@@ -73,6 +73,15 @@ class ViewMetrics:
     pose_error_m: float = 0.0
     pose_error_deg: float = 0.0
     registration_ms: float = 0.0
+    #: "accepted", or why the frame kept its prior; "" for the first frame and when off
+    registration: str = ""
+
+
+def verdict(registration: dict | None) -> str:
+    """A registration's outcome as a view records it: "accepted" or the refusal's reason."""
+    if registration is None:
+        return ""
+    return "accepted" if registration["accepted"] else registration["reason"]
 
 
 def path_bases(world, path: str, views: int, centre: np.ndarray) -> list[tuple[float, float]]:
@@ -226,6 +235,7 @@ def run_fusion(args: argparse.Namespace, progress=None):
                 pose_error[0],
                 pose_error[1],
                 memory.timings_ms.get("registration_ms", 0.0),
+                verdict(memory.last_registration if i > 0 else None),
             )
         )
         if progress:

@@ -24,32 +24,45 @@ from services.scene_memory.voxel_map import find
 REFIT = 1.5
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _cross_norm(a0, a1, a2, b0, b1, b2) -> tuple[float, float, float, float]:
+    """a × b and its squared length."""
+    v0, v1, v2 = a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+    return v0, v1, v2, v0 * v0 + v1 * v1 + v2 * v2
+
+
 @njit(cache=True, nogil=True)
-def _smallest_eigenvector(a: np.ndarray) -> np.ndarray:
-    """The unit eigenvector of the symmetric 3×3 ``a``'s smallest eigenvalue (closed form:
-    the eigenvalues by the trigonometric solution of the characteristic cubic, the vector as
-    the largest cross product of two rows of a − λI)."""
-    p1 = a[0, 1] ** 2 + a[0, 2] ** 2 + a[1, 2] ** 2
-    q = (a[0, 0] + a[1, 1] + a[2, 2]) / 3.0
-    p2 = (a[0, 0] - q) ** 2 + (a[1, 1] - q) ** 2 + (a[2, 2] - q) ** 2 + 2.0 * p1
-    out = np.zeros(3)
+def smallest_eigen(
+    xx: float, xy: float, xz: float, yy: float, yz: float, zz: float
+) -> tuple[float, float, float, float]:
+    """The smallest eigenvalue of the symmetric 3×3 matrix [[xx xy xz] [xy yy yz] [xz yz zz]]
+    and its unit eigenvector, (λ, x, y, z), in closed form without allocating: the eigenvalue
+    by the trigonometric solution of the characteristic cubic, the vector as the longest cross
+    product of two rows of a − λI."""
+    p1 = xy * xy + xz * xz + yz * yz
+    q = (xx + yy + zz) / 3.0
+    p2 = (xx - q) ** 2 + (yy - q) ** 2 + (zz - q) ** 2 + 2.0 * p1
     if p2 <= 1e-30:
-        out[2] = 1.0  # isotropic: any direction
-        return out
+        return q, 0.0, 0.0, 1.0  # isotropic: any direction
     p = math.sqrt(p2 / 6.0)
-    b = (a - q * np.eye(3)) / p
-    r = np.linalg.det(b) / 2.0
-    phi = math.acos(min(1.0, max(-1.0, r))) / 3.0
+    b00, b11, b22 = (xx - q) / p, (yy - q) / p, (zz - q) / p
+    b01, b02, b12 = xy / p, xz / p, yz / p
+    det = (b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02)
+           + b02 * (b01 * b12 - b11 * b02))  # fmt: skip
+    phi = math.acos(min(1.0, max(-1.0, det / 2.0))) / 3.0
     lam = q + 2.0 * p * math.cos(phi + 2.0 * math.pi / 3.0)  # the smallest root
-    c = a - lam * np.eye(3)
-    best = -1.0
-    for i, j in ((0, 1), (0, 2), (1, 2)):
-        v = np.cross(c[i], c[j])
-        norm = v @ v
-        if norm > best:
-            best = norm
-            out = v
-    return out / math.sqrt(best) if best > 0 else out
+    a00, a11, a22 = xx - lam, yy - lam, zz - lam
+    v0, v1, v2, best = _cross_norm(a00, xy, xz, xy, a11, yz)
+    w0, w1, w2, n = _cross_norm(a00, xy, xz, xz, yz, a22)
+    if n > best:
+        v0, v1, v2, best = w0, w1, w2, n
+    w0, w1, w2, n = _cross_norm(xy, a11, yz, xz, yz, a22)
+    if n > best:
+        v0, v1, v2, best = w0, w1, w2, n
+    if best <= 0:
+        return lam, 0.0, 0.0, 1.0
+    k = 1.0 / math.sqrt(best)
+    return lam, v0 * k, v1 * k, v2 * k
 
 
 @njit(cache=True, nogil=True)
@@ -66,8 +79,8 @@ def _normal(
     last = fitted[s]
     if last != 0 and stats[s, 0] < REFIT * abs(last):
         return last > 0
-    acc = np.zeros(10)
     ox, oy, oz = index[s, 0], index[s, 1], index[s, 2]
+    n = sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0
     for dx in range(-1, 2):
         for dy in range(-1, 2):
             for dz in range(-1, 2):
@@ -75,41 +88,34 @@ def _normal(
                 if j < 0:
                     continue
                 # move the neighbour's sums to voxel s's corner: p' = p + d·voxel
-                n = stats[j, 0]
-                sx, sy, sz = stats[j, 1], stats[j, 2], stats[j, 3]
+                m = stats[j, 0]
+                jx, jy, jz = stats[j, 1], stats[j, 2], stats[j, 3]
                 ex, ey, ez = dx * voxel, dy * voxel, dz * voxel
-                acc[0] += n
-                acc[1] += sx + n * ex
-                acc[2] += sy + n * ey
-                acc[3] += sz + n * ez
-                acc[4] += stats[j, 4] + 2 * ex * sx + n * ex * ex
-                acc[5] += stats[j, 5] + ex * sy + ey * sx + n * ex * ey
-                acc[6] += stats[j, 6] + ex * sz + ez * sx + n * ex * ez
-                acc[7] += stats[j, 7] + 2 * ey * sy + n * ey * ey
-                acc[8] += stats[j, 8] + ey * sz + ez * sy + n * ey * ez
-                acc[9] += stats[j, 9] + 2 * ez * sz + n * ez * ez
-    n = acc[0]
+                n += m
+                sx += jx + m * ex
+                sy += jy + m * ey
+                sz += jz + m * ez
+                sxx += stats[j, 4] + 2 * ex * jx + m * ex * ex
+                sxy += stats[j, 5] + ex * jy + ey * jx + m * ex * ey
+                sxz += stats[j, 6] + ex * jz + ez * jx + m * ex * ez
+                syy += stats[j, 7] + 2 * ey * jy + m * ey * ey
+                syz += stats[j, 8] + ey * jz + ez * jy + m * ey * ez
+                szz += stats[j, 9] + 2 * ez * jz + m * ez * ez
     if n < 6:
         fitted[s] = -stats[s, 0]
         return False
-    mx, my, mz = acc[1] / n, acc[2] / n, acc[3] / n
-    cov = np.empty((3, 3))
-    cov[0, 0] = acc[4] / n - mx * mx
-    cov[0, 1] = cov[1, 0] = acc[5] / n - mx * my
-    cov[0, 2] = cov[2, 0] = acc[6] / n - mx * mz
-    cov[1, 1] = acc[7] / n - my * my
-    cov[1, 2] = cov[2, 1] = acc[8] / n - my * mz
-    cov[2, 2] = acc[9] / n - mz * mz
-    nrm = _smallest_eigenvector(cov)
-    spread = nrm @ cov @ nrm
+    mx, my, mz = sx / n, sy / n, sz / n
+    spread, nx, ny, nz = smallest_eigen(
+        sxx / n - mx * mx, sxy / n - mx * my, sxz / n - mx * mz,
+        syy / n - my * my, syz / n - my * mz, szz / n - mz * mz,
+    )  # fmt: skip
     if spread > thickness * thickness:
         fitted[s] = -stats[s, 0]
         return False
-    planes[s, :3] = nrm
     own = stats[s, 0]
-    planes[s, 3] = -(nrm[0] * (ox * voxel + stats[s, 1] / own)
-                     + nrm[1] * (oy * voxel + stats[s, 2] / own)
-                     + nrm[2] * (oz * voxel + stats[s, 3] / own))  # fmt: skip
+    planes[s, 0], planes[s, 1], planes[s, 2] = nx, ny, nz
+    planes[s, 3] = -(nx * (ox * voxel + stats[s, 1] / own) + ny * (oy * voxel + stats[s, 2] / own)
+                     + nz * (oz * voxel + stats[s, 3] / own))  # fmt: skip
     fitted[s] = stats[s, 0]
     return True
 

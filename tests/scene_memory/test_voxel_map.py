@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from services.common.poses import pose_difference
-from services.scene_memory.icp import _smallest_eigenvector, candidates, icp, residuals
+from services.scene_memory.icp import candidates, icp, residuals, smallest_eigen
 from services.scene_memory.registration import RegistrationConfig
 from services.scene_memory.voxel_map import VoxelMap, find, means, summarise
 
@@ -65,18 +65,24 @@ def test_the_map_grows_and_finds_every_voxel_and_survives_a_snapshot():
         assert np.all(m.fitted[: len(m)] == 0)  # planes are a cache, refitted after a restore
 
 
-def test_smallest_eigenvector_matches_numpy():
+def test_smallest_eigen_matches_numpy():
     rng = np.random.default_rng(2)
+
+    def eigen(a: np.ndarray) -> tuple[float, np.ndarray]:
+        lam, x, y, z = smallest_eigen(a[0, 0], a[0, 1], a[0, 2], a[1, 1], a[1, 2], a[2, 2])
+        return lam, np.array([x, y, z])
+
     for scale in (1.0, 1e-6, 1e3):
         for _ in range(200):
             a = rng.normal(size=(3, 3)) * scale
             a = a @ a.T
-            want = np.linalg.eigh(a)[1][:, 0]
-            got = _smallest_eigenvector(a)
-            assert abs(abs(got @ want) - 1.0) < 1e-6, (a, got, want)
+            values, vectors = np.linalg.eigh(a)
+            lam, got = eigen(a)
+            assert lam == pytest.approx(values[0], abs=1e-9 * values[-1])
+            assert abs(abs(got @ vectors[:, 0]) - 1.0) < 1e-6, (a, got, vectors[:, 0])
     # a plane's scatter: two equal eigenvalues, the normal is still unique
-    flat = np.diag([1.0, 1.0, 1e-8])
-    assert abs(_smallest_eigenvector(flat)[2]) == pytest.approx(1.0)
+    lam, normal = eigen(np.diag([1.0, 1.0, 1e-8]))
+    assert abs(normal[2]) == pytest.approx(1.0) and lam == pytest.approx(1e-8, abs=1e-12)
 
 
 def rotation(axis, degrees: float) -> np.ndarray:
