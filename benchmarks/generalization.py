@@ -45,7 +45,9 @@ def _last_line(text: str) -> str:
     return lines[-1][:200] if lines else ""
 
 
-def run_scene(seed: int, out: Path, views: int, noise: str = "off") -> dict:
+def run_scene(
+    seed: int, out: Path, views: int, noise: str = "on", registration: str | None = None
+) -> dict:
     """Generate, perceive and explore one scene; what went wrong goes into ``error``."""
     scene = generate(seed)
     path = out / "scenes" / f"scene_{seed}.xml"
@@ -73,7 +75,8 @@ def run_scene(seed: int, out: Path, views: int, noise: str = "off") -> dict:
     episode = out / "episodes" / f"scene_{seed}"
     e = _avs(
         ["explore", "--scene", str(path), "--strategy", "utility", "--fusion", "sg",
-         "--views", str(views), "--noise", noise, "--registration", noise, "--out", str(episode)],
+         "--views", str(views), "--noise", noise, "--registration", registration or noise,
+         "--out", str(episode)],
         1800,
     )  # fmt: skip
     metrics = episode / "metrics.json"
@@ -88,6 +91,10 @@ def run_scene(seed: int, out: Path, views: int, noise: str = "off") -> dict:
             "precision_final": v[-1]["support_precision"] if v else 0.0,
             "recall_final": v[-1]["support_recall"] if v else 0.0,
             "inlier_index": v[-1]["inlier_index"] if v else 0.0,
+            # the camera pose the map used at the last view against the truth, and how many
+            # views after the first registration accepted
+            "pose_error_mm": 1e3 * v[-1]["pose_error_m"] if v else 0.0,
+            "registered": sum(x["registration"] == "accepted" for x in v[1:]),
             "false_positives": [e for e in m["final_support_edges"] if "#" in "".join(e)],
         }
     else:
@@ -101,6 +108,7 @@ def summary(rows: list[dict]) -> dict:
     f1_final = np.array([r.get("f1_final", 0.0) if not r["crashed"] else 0.0 for r in rows])
     f1_view1 = np.array([r.get("f1_view1", 0.0) if not r["crashed"] else 0.0 for r in rows])
     inlier = np.array([r.get("inlier_index", 0.0) if not r["crashed"] else 0.0 for r in rows])
+    pose = np.array([r.get("pose_error_mm", 0.0) for r in rows if not r["crashed"]] or [0.0])
     return {
         "scenes": len(rows),
         "crashed": sum(r["crashed"] for r in rows),
@@ -109,6 +117,8 @@ def summary(rows: list[dict]) -> dict:
         "f1_final_mean": float(f1_final.mean()) if len(rows) else 0.0,
         "f1_final_p10": float(np.percentile(f1_final, 10)) if len(rows) else 0.0,
         "inlier_index_mean": float(inlier.mean()) if len(rows) else 0.0,
+        "pose_error_mm_median": float(np.median(pose)),
+        "pose_error_mm_max": float(pose.max()),
     }
 
 
@@ -140,8 +150,38 @@ def row_text(r: dict) -> str:
     return (
         f"{r['seed']:>5} {r['objects']:>3} {away} {r.get('perceive_inlier_index', 0):6.2f} "
         f"{r['views']:>3} {r['terminated_by']:<13} {r['f1_view1']:5.2f} {r['f1_final']:5.2f} "
-        f"{r['precision_final']:5.2f} {r['recall_final']:5.2f} {r['inlier_index']:5.2f}"
+        f"{r['precision_final']:5.2f} {r['recall_final']:5.2f} {r['inlier_index']:5.2f} "
+        f"{r['pose_error_mm']:6.1f} {r['registered']:>3}"
     )
+
+
+def markdown(rows: list[dict]) -> str:
+    """The README's table of a run."""
+
+    def arrangements(r: dict) -> str:
+        kinds = [a.split(":")[0] for a in r["arrangements"]]
+        counts = {k: kinds.count(k) for k in dict.fromkeys(kinds)}
+        return ", ".join(f"{n}× {k}" if n > 1 else k for k, n in counts.items())
+
+    lines = [
+        "| seed | objects | arrangements | start | views | F1 view 1 | F1 final | precision "
+        "| recall | InlierIndex | pose error | registered |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        start = "away" if r["facing_away"] else "facing"
+        if r["crashed"]:
+            lines.append(f"| {r['seed']} | {r['objects']} | {arrangements(r)} | {start} | "
+                         "crashed | | | | | | | |")  # fmt: skip
+            continue
+        lines.append(
+            f"| {r['seed']} | {r['objects']} | {arrangements(r)} | {start} | {r['views']} | "
+            f"{r['f1_view1']:.2f} | {r['f1_final']:.2f} | {r['precision_final']:.2f} | "
+            f"{r['recall_final']:.2f} | {r['inlier_index']:.2f} | "
+            + (f"{r['pose_error_mm']:.0f} mm | {r['registered']}/{r['views'] - 1} |"
+               if "pose_error_mm" in r else "— | — |")
+        )  # fmt: skip
+    return "\n".join(lines)
 
 
 def main() -> None:
@@ -154,13 +194,25 @@ def main() -> None:
         help="the robot's sensor models (depth noise included) and view registration in the "
         "episodes, as avs explore has them by default; off: the simulator's truth",
     )  # fmt: skip
+    parser.add_argument(
+        "--registration", choices=["on", "off"], default=None,
+        help="the scene memory's view registration (default: as --noise)",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "generalization")
+    parser.add_argument(
+        "--markdown", type=Path, metavar="JSON",
+        help="print the table of an earlier run's generalization.json and stop",
+    )  # fmt: skip
     args = parser.parse_args()
+    if args.markdown:
+        print(markdown(json.loads(args.markdown.read_text())["rows"]))
+        return
     args.out.mkdir(parents=True, exist_ok=True)
-    print(" seed obj      perc.II  n  terminated    F1(1) F1(n) prec. rec.  II(n)", flush=True)
+    print(" seed obj      perc.II  n  terminated    F1(1) F1(n) prec. rec.  II(n)  pose  reg",
+          flush=True)  # fmt: skip
     rows = []
     for i, seed in enumerate(range(args.first_seed, args.first_seed + args.scenes)):
-        rows.append(run_scene(seed, args.out, args.views, args.noise))
+        rows.append(run_scene(seed, args.out, args.views, args.noise, args.registration))
         print(row_text(rows[-1]), f"  [{i + 1}/{args.scenes}, {rows[-1]['seconds']} s]", flush=True)
         (args.out / "generalization.json").write_text(
             json.dumps({"rows": rows, "summary": summary(rows)}, indent=2)
