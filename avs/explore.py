@@ -105,9 +105,7 @@ class ViewRecord:
     pose_error_m: float = 0.0
     pose_error_deg: float = 0.0
     registration_ms: float = 0.0
-    #: "accepted", or why the frame kept its prior ("not_a_keyframe": the camera moved too
-    #: little since the last integrated frame to integrate this one); "" when off
-    registration: str = ""
+    registration: str = ""  # "accepted", or why the frame kept its prior; "" when off
     #: T_world_camera (4×4, rows) the map used, and the true one the truth is scored with
     camera_pose_used: list[list[float]] = field(default_factory=list)
     camera_pose_true: list[list[float]] = field(default_factory=list)
@@ -383,7 +381,6 @@ class Episode:
         visited: list[list[float]] = []
         seen: list[dict[str, np.ndarray]] = []
         accumulated = 0.0
-        integrated_before = 0  # frames the scene memory integrated (the rest: no keyframe)
         for view in range(c.views):
             t0 = time.perf_counter()
             request = PlanRequest(
@@ -405,7 +402,7 @@ class Episode:
             self._sim(session, op="render")
             frame = frames.wait(lambda f, n=n_frames: frames.count > n, 30, "the rendered frame")
             scene = scenes.wait(lambda s, v=view: s.n_views >= v + 1, 120, f"the fused view {view}")
-            integrated = self._wait_integrated(session, view + 1)
+            self._wait_integrated(session, view + 1)
             gt = self._query(
                 session, k.ground_truth(), GroundTruthQuery(camera="head_rgbd"), GroundTruth
             )
@@ -415,18 +412,12 @@ class Episode:
             # the map placed the frame at its odometry pose, corrected by registration; the
             # truth is scored where the true camera pose puts it
             T_used, registration_ms, registration = frame.T_world_camera, 0.0, ""
-            if c.registration and integrated > integrated_before:
+            if c.registration:
                 corr = corrections.wait(lambda m, s=frame.seq: m.frame_seq >= s, 30,
                                         f"the pose correction of frame {frame.seq}")  # fmt: skip
                 T_used = corr.T_world_odom @ frame.T_world_camera
                 registration_ms = corr.registration_ms
                 registration = "accepted" if corr.accepted else corr.reason
-            elif c.registration:  # no keyframe (the camera moved too little): not registered,
-                # the map placed it with the last correction
-                last = corrections.value
-                T_used = (last.T_world_odom if last else np.eye(4)) @ frame.T_world_camera
-                registration = "not_a_keyframe"
-            integrated_before = integrated
             T_true = gt.T_world_camera if gt.T_world_camera is not None else frame.T_world_camera
             pose_error = pose_difference(T_true, T_used)
             seen.append(evaluation.labelled_points(gt, frame.depth, frame.intrinsics, T_true))
@@ -504,13 +495,11 @@ class Episode:
         result.floor_origin = [float(origin[0]), float(origin[1])]
         result.floor_cell = float(v)
 
-    def _wait_integrated(self, session, frames: int) -> int:
-        """Wait until the scene memory has taken ``frames`` frames (integrated or skipped as no
-        keyframe); the count it integrated."""
+    def _wait_integrated(self, session, frames: int) -> None:
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
             stats = self._query(session, self.keys.occupancy("stats"), None, OccupancyStats)
             if stats.frames_integrated + stats.frames_skipped >= frames:
-                return stats.frames_integrated
+                return
             time.sleep(0.05)
         raise TimeoutError("the scene memory did not integrate the frame")

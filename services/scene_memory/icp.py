@@ -2,9 +2,9 @@
 ``registration``.
 
 A point is matched to the mean of its own voxel, or, where that is empty, to the nearest mean
-of the neighbours around its nearest corner; the match's plane is the one fitted to the 3×3×3
-voxels around it (once, when first matched: its centroid is less biased by noise than the
-voxel's own mean, as a noisy surface straddles voxel layers). Each Gauss-Newton step linearises
+of the neighbours around its nearest corner; the match's plane has the normal of the points of
+the 3×3×3 voxels around it and passes through the voxel's mean (fitted when first matched,
+refitted as the voxel grows). Each Gauss-Newton step linearises
 r = n·(Rq + t) + d about the current pose, J = [(q × n)ᵀ nᵀ], with Tukey's biweight on r. A
 hash lookup where a point enters a new cell (against a persistent map, so nothing is rebuilt
 per frame) replaces Open3D's k-d tree build, normal estimation and nearest-neighbour search,

@@ -15,7 +15,6 @@ from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap
 from services.scene_memory.registration import (
     RegistrationConfig,
     RegistrationMap,
-    camera_points,
     moved,
     register,
 )
@@ -55,8 +54,6 @@ class SceneMemory:
     #: what frames are registered against (``registration``): built as frames are integrated,
     #: rebuilt from the registered cloud for a snapshot written before it existed
     registration_map: RegistrationMap | None = None
-    #: whether the frame being integrated was placed by registration (or is the first)
-    _registered: bool = False
 
     def __init__(self, config: MemoryConfig | None = None) -> None:
         self.config = config or MemoryConfig()
@@ -97,7 +94,12 @@ class SceneMemory:
         K = frame.intrinsics
         max_range = min(self.config.occupancy.max_range, frame.depth_max or np.inf)
         self.timings_ms = {}
-        T = self.registered_pose(frame, max_range)
+        # the frame's points, every 2nd pixel, in its camera's frame: registered, then the cloud
+        z = frame.depth[::2, ::2]
+        v, u = np.nonzero((z > self.config.depth_min) & (z <= max_range))
+        d = z[v, u].astype(np.float64)
+        cam = np.column_stack([(2 * u - K.cx) / K.fx * d, (2 * v - K.cy) / K.fy * d, d])
+        T, registered = self.registered_pose(frame, cam)
         roi = self.config.roi
         if roi is not None:
             unknown = self.occupancy.counts(*roi)[0]
@@ -111,12 +113,8 @@ class SceneMemory:
             volume = unknown - self.occupancy.counts(*roi)[0]
             self.realised_gain = {"volume": float(volume), "rays": rays}
         t1 = time.perf_counter()
-        z = frame.depth[::2, ::2]
-        v, u = np.nonzero((z > self.config.depth_min) & (z <= max_range))
-        d = z[v, u].astype(np.float64)
-        cam = np.column_stack([(2 * u - K.cx) / K.fx * d, (2 * v - K.cy) / K.fy * d, d])
         pts = cam @ T[:3, :3].T + T[:3, 3]
-        if self.config.registration is not None and self._registered:
+        if self.config.registration is not None and registered:
             # only frames that registration placed (or the first, which defines the map): a
             # refused frame, fused where odometry puts it, would give the next frame a
             # misplaced copy of the scene to align to
@@ -137,17 +135,17 @@ class SceneMemory:
         self.timings_ms["cloud_ms"] = (time.perf_counter() - t1) * 1e3
         return n
 
-    def registered_pose(self, frame: RgbdFrame, max_range: float) -> np.ndarray:
+    def registered_pose(self, frame: RgbdFrame, cam: np.ndarray) -> tuple[np.ndarray, bool]:
         """The frame's camera pose in the map: its odometry pose corrected by the last
-        correction, refined against the cloud so far when registration is on (A.5)."""
+        correction, refined against the cloud so far when registration is on (A.5), from the
+        frame's points ``cam`` (camera frame); and whether registration placed it (or it is the
+        first frame, which defines the map)."""
         T_odom = np.asarray(frame.T_world_camera, float)
         prior = T_odom if self.T_world_odom is None else self.T_world_odom @ T_odom
         c = self.config.registration
-        self._registered = len(self.cloud) == 0
-        if c is None or self._registered:
-            return prior
-        pts = camera_points(frame.depth, frame.intrinsics, self.config.depth_min, max_range)
-        result = register(pts, prior, self._registration_map(), c)
+        if c is None or len(self.cloud) == 0:
+            return prior, len(self.cloud) == 0
+        result = register(cam, prior, self._registration_map(), c)
         self.last_registration = {
             "accepted": result.accepted, "reason": result.reason, "fitness": result.fitness,
             "rmse": result.rmse, "ms": result.ms, "stamp": frame.stamp,
@@ -155,10 +153,9 @@ class SceneMemory:
         self.timings_ms["registration_ms"] = result.ms
         if not result.accepted:
             self.registrations_refused += 1
-            return prior
+            return prior, False
         self.T_world_odom = result.T_world_camera @ np.linalg.inv(T_odom)
-        self._registered = True
-        return result.T_world_camera
+        return result.T_world_camera, True
 
     def _registration_map(self) -> RegistrationMap:
         if self.registration_map is None:

@@ -148,11 +148,18 @@ def depth_weights(z: np.ndarray, c: RegistrationConfig) -> np.ndarray:
     return (c.sigma_ref / (c.sigma0 + c.sigma2 * np.maximum(z - 0.4, 0.0) ** 2)) ** 2
 
 
-def _source(points_camera: np.ndarray, p: Pass) -> np.ndarray:
-    """The frame's cloud averaged on the pass's voxel, every k-th voxel to ``p.points``."""
-    index, stats = summarise(points_camera, p.source_voxel)
-    centres = means(index, stats, p.source_voxel)
-    return np.ascontiguousarray(centres[:: -(-len(centres) // p.points)])
+def _sources(points_camera: np.ndarray, c: RegistrationConfig) -> list[np.ndarray]:
+    """Per pass, the frame's cloud averaged on the pass's source voxel, every k-th voxel to
+    the pass's ``points`` (passes with one source voxel share the averaging)."""
+    averaged: dict[float, np.ndarray] = {}
+    out = []
+    for p in c.passes:
+        if p.source_voxel not in averaged:
+            index, stats = summarise(points_camera, p.source_voxel)
+            averaged[p.source_voxel] = means(index, stats, p.source_voxel)
+        centres = averaged[p.source_voxel]
+        out.append(np.ascontiguousarray(centres[:: -(-len(centres) // p.points)]))
+    return out
 
 
 def register(
@@ -175,7 +182,7 @@ def register(
         target = RegistrationMap.of(np.asarray(target, np.float64), c)
     points_camera = np.ascontiguousarray(points_camera, np.float64)
     R, t = T_prior[:3, :3], T_prior[:3, 3]
-    cams = [_source(points_camera, p) for p in c.passes]
+    cams = _sources(points_camera, c)
     sources = [np.ascontiguousarray(q @ R.T + t) for q in cams]
     weights = [depth_weights(q[:, 2], c) for q in cams]
     if len(sources[-1]) < c.min_points or len(target) < c.min_points:
