@@ -7,7 +7,7 @@ key expressions of SPEC §1.
 
 from schemas.base import REGISTRY, Message, Model, Stamped
 from schemas.codec import ERROR_KINDS, CodecError, decode, encode, encode_fields
-from schemas.commands import BaseGoal, BaseVelocity, HeadCommand
+from schemas.commands import ArmCommand, BaseGoal, BaseVelocity, HeadCommand
 from schemas.gaze import EgoSphereSnapshot, GazeTarget
 from schemas.keys import DEFAULT_ROBOT, KEY_TABLE, Keys, KeySpec, spec_for
 from schemas.occupancy import BoxQuery, OccupancySlice, OccupancyStats
@@ -44,6 +44,7 @@ __all__ = [
     "KEY_TABLE",
     "REGISTRY",
     "Affordance",
+    "ArmCommand",
     "BaseGoal",
     "BasePose",
     "BaseVelocity",

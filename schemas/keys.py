@@ -52,6 +52,7 @@ KEY_TABLE: tuple[KeySpec, ...] = (
     KeySpec("state/base", ("BasePose",), "stream", "sim", "drop", "interactive_high", True, "100 Hz"),
     KeySpec("cmd/base", ("BaseGoal", "BaseVelocity"), "command", "nbv", "block", "interactive_high", False, "on demand"),
     KeySpec("cmd/head", ("HeadCommand",), "command", "gaze", "drop", "real_time", True, "up to 1 kHz"),
+    KeySpec("cmd/arm", ("ArmCommand",), "command", "grasp servo", "drop", "real_time", True, "up to 1 kHz"),
     KeySpec("perception/observation", ("SceneObservation",), "stream", "perception", "block", "data", False, "per processed frame"),
     KeySpec("memory/scene", ("SceneModel",), "stream", "scene_memory", "block", "data", False, "put on change + queryable"),
     KeySpec("memory/occupancy/**", ("OccupancyStats", "OccupancySlice"), "queryable", "scene_memory", note="queryable"),
@@ -112,6 +113,9 @@ class Keys:
 
     def cmd_head(self) -> str:
         return self.key("cmd/head")
+
+    def cmd_arm(self) -> str:
+        return self.key("cmd/arm")
 
     def observation(self) -> str:
         return self.key("perception/observation")

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from pydantic import BaseModel
 
-from schemas import RgbdFrame, SceneGraph, SimControl
+from schemas import ArmCommand, RgbdFrame, SceneGraph, SimControl
 from schemas.arrays import Array, Dim
 from schemas.base import field_metadata
 from schemas.occupancy import BoxQuery
@@ -186,7 +186,17 @@ def _fix_sim_control(draw, values: dict, dims: dict) -> None:
         values["joint"] = "hip_yaw"
 
 
+def _fix_arm(draw, values: dict, dims: dict) -> None:
+    n = dims.setdefault("n", draw(st.integers(1, MAX_DIM)))
+    values["names"] = [draw(st.text(min_size=1, max_size=8)) for _ in range(n)]
+    values["values"] = _array(draw, Array("float64", ("n",)), [Finite()], dims)
+    values["goal"] = _rigid(draw)
+    if values.get("gripper") is None:
+        values["gripper"] = draw(st.floats(0.0, 1.0))
+
+
 FIXUPS: dict[type, Callable[[Any, dict, dict], None]] = {
+    ArmCommand: _fix_arm,
     RgbdFrame: _fix_rgbd,
     SceneGraph: _fix_scene_graph,
     BoxQuery: _fix_box,

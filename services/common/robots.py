@@ -25,6 +25,7 @@ JOINT_SPEED: dict[str, dict[str, float]] = {
         "eye_tilt": 5.0,
         "eye_pan_left": 5.0,
         "eye_pan_right": 5.0,
+        **{f"{s}_finger_{f}": 0.15 for s in "lr" for f in "ab"},
     },
 }
 
@@ -37,6 +38,37 @@ def robot_mjcf(robot: str) -> Path:
     return path
 
 
+def _frame(element: ET.Element) -> np.ndarray:
+    """T_body_element of an MJCF camera or site: ``pos`` and ``xyaxes`` (MuJoCo's axes)."""
+    pos = np.array([float(v) for v in element.get("pos", "0 0 0").split()])
+    xy = np.array([float(v) for v in element.get("xyaxes", "1 0 0 0 1 0").split()])
+    x, y = xy[:3] / np.linalg.norm(xy[:3]), xy[3:] / np.linalg.norm(xy[3:])
+    y = y - (y @ x) * x
+    y /= np.linalg.norm(y)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([x, y, np.cross(x, y)])
+    T[:3, 3] = pos
+    return T
+
+
+def site_mount(mjcf: Path, site: str) -> tuple[str, np.ndarray]:
+    """(parent body, T_body_site) of a site in an MJCF file (e.g. a hand's grasp frame)."""
+    for body in ET.parse(mjcf).getroot().iter("body"):
+        for s in body.findall("site"):
+            if s.get("name") == site:
+                return body.get("name"), _frame(s)
+    raise KeyError(f"{mjcf} has no site {site!r}")
+
+
+def geom_position(mjcf: Path, geom: str) -> tuple[str, np.ndarray]:
+    """(parent body, position in it) of a named geom in an MJCF file (e.g. a hand's marker)."""
+    for body in ET.parse(mjcf).getroot().iter("body"):
+        for g in body.findall("geom"):
+            if g.get("name") == geom:
+                return body.get("name"), np.array([float(v) for v in g.get("pos", "0 0 0").split()])
+    raise KeyError(f"{mjcf} has no geom {geom!r}")
+
+
 def camera_mount(mjcf: Path, camera: str) -> tuple[str, np.ndarray]:
     """(parent body, T_body_optical) of a camera in an MJCF file: MuJoCo cameras look along
     their −z with y up; the optical frame looks along +z with y down."""
@@ -44,11 +76,7 @@ def camera_mount(mjcf: Path, camera: str) -> tuple[str, np.ndarray]:
         for cam in body.findall("camera"):
             if cam.get("name") != camera:
                 continue
-            pos = np.array([float(v) for v in cam.get("pos", "0 0 0").split()])
-            xy = np.array([float(v) for v in cam.get("xyaxes", "1 0 0 0 1 0").split()])
-            x, y = xy[:3] / np.linalg.norm(xy[:3]), xy[3:] / np.linalg.norm(xy[3:])
-            T = np.eye(4)
-            T[:3, :3] = np.column_stack([x, -y, -np.cross(x, y)])
-            T[:3, 3] = pos
+            T = _frame(cam)
+            T[:3, 1:3] = -T[:3, 1:3]  # MuJoCo camera (−z forward, y up) → optical frame
             return body.get("name"), T
     raise KeyError(f"{mjcf} has no camera {camera!r}")

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from schemas import (
+    ArmCommand,
     BaseGoal,
     BasePose,
     BaseVelocity,
@@ -113,11 +114,13 @@ class SimNode:
         # on the wall clock, head commands (1 kHz from the gaze) wait for the physics loop,
         # which applies them between two steps: no thread woken per command, no lock handed
         # back and forth; in lockstep each is applied as it comes (the driver steps after)
-        self.head_commands = None
+        self.head_commands = self.arm_commands = None
         if settings.lockstep:
             node.subscribe(k.cmd_head(), HeadCommand, self.on_head_command)
+            node.subscribe(k.cmd_arm(), ArmCommand, self.on_arm_command)
         else:
             self.head_commands = node.inbox(k.cmd_head(), HeadCommand, size=64)
+            self.arm_commands = node.inbox(k.cmd_arm(), ArmCommand, size=64)
         node.serve(k.sim_control(), self.on_control, SimControl)
         node.serve(k.ground_truth(), self.on_ground_truth, GroundTruthQuery)
         self.worker = RenderWorker(self)
@@ -286,10 +289,30 @@ class SimNode:
                 self.world.set_base_velocity(cmd.v_x, cmd.v_y, cmd.v_yaw, cmd.timeout)
 
     def apply_head_commands(self) -> None:
-        """The head commands that came since the last step, in order (lock held)."""
+        """The head and arm commands that came since the last step, in order (lock held)."""
         if self.head_commands is not None:
             for cmd in self.head_commands.take():
                 self.on_cmd_head(cmd)
+        if self.arm_commands is not None:
+            for arm in self.arm_commands.take():
+                self.on_cmd_arm(arm)
+
+    def on_arm_command(self, cmd: ArmCommand) -> None:
+        """An arm command as it comes (lockstep)."""
+        with self.lock:
+            self.on_cmd_arm(cmd)
+
+    def on_cmd_arm(self, cmd: ArmCommand) -> None:
+        """Apply one arm command (lock held); a robot without that arm, or joints not of it,
+        are refused and counted."""
+        try:
+            refused = self.world.command_arm(
+                cmd.arm, cmd.mode, cmd.names, cmd.values, cmd.goal, cmd.gripper
+            )
+        except KeyError as e:
+            refused = [str(e)]
+        if refused and self.node.metrics.drop("unknown_joint"):
+            log.warning("ignoring arm command for %s: %s", cmd.arm, refused)
 
     def on_head_command(self, cmd: HeadCommand) -> None:
         """A head command as it comes (lockstep)."""

@@ -81,7 +81,15 @@ ARMAR3 = RobotInfo(
     acc_rot=1.0,
     footprint_radius=0.4,
     joint_speed=JOINT_SPEED["armar3"],
-    home={"neck_lower_pitch": 0.2, "neck_upper_pitch": 0.15},
+    home={
+        "neck_lower_pitch": 0.2,
+        "neck_upper_pitch": 0.15,
+        # the arms at rest: upper arms down, forearms forward, grippers open
+        **{f"{s}_shoulder_pitch": -0.3 for s in "lr"},
+        **{f"{s}_elbow": -1.3 for s in "lr"},
+        "l_shoulder_roll": 0.15,
+        "r_shoulder_roll": -0.15,
+    },
 )
 
 ROBOTS = {r.name: r for r in (ARMAR6, ARMAR3)}

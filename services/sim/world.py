@@ -20,6 +20,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
+from services.common.arm import ArmKinematics
 from services.sim.robots import BASE_JOINTS, RobotInfo
 from services.sim.scene import (
     ROBOT_PREFIX,
@@ -125,6 +126,7 @@ class World:
         self.cameras = {c.name: m.camera(ROBOT_PREFIX + c.name).id for c in robot.cameras}
         self.base = BaseCommand()
         self.disturbance: Disturbance | None = None
+        self._arms: dict[str, ArmKinematics] = {}
         self._v_cmd = np.zeros(3)  # world vx, vy, yaw rate being commanded
         self._hold = np.zeros(3)
         self.steps = 0
@@ -194,6 +196,43 @@ class World:
                 s.velocity = float(value)
                 s.velocity_until = self.time + self.head_velocity_timeout
         return unknown
+
+    def command_arm(
+        self,
+        side: str,
+        mode: str,
+        names: list[str] | None = None,
+        values: np.ndarray | None = None,
+        goal: np.ndarray | None = None,
+        gripper: float | None = None,
+    ) -> list[str]:
+        """An arm command (``schemas.ArmCommand``): joint velocities or positions of that
+        arm's joints, a Cartesian goal of its grasp frame (T_platform_grasp, resolved by
+        inverse kinematics from where the arm is), and/or the gripper (0 open … 1 closed).
+        Returns the joint names it refused (unknown, or not of that arm)."""
+        kin = self._arm(side)
+        spec = kin.spec
+        refused: list[str] = []
+        if mode in ("velocity", "position") and names is not None and values is not None:
+            mine = [n in spec.joints for n in names]
+            refused = [n for n, ok in zip(names, mine, strict=True) if not ok]
+            keep = [n for n, ok in zip(names, mine, strict=True) if ok]
+            vals = np.asarray(values, float)[np.array(mine, bool)]
+            self.command_joints(keep, mode, vals)
+        elif mode == "cartesian" and goal is not None:
+            names_, q, _ = self.joint_state()
+            solution, _ = kin.ik(np.asarray(goal, float), dict(zip(names_, q, strict=True)))
+            self.command_joints(list(spec.joints), "position", solution)
+        if gripper is not None:
+            closed = [self.servos[f].upper for f in spec.fingers]
+            self.command_joints(list(spec.fingers), "position", float(gripper) * np.array(closed))
+        return refused
+
+    def _arm(self, side: str) -> ArmKinematics:
+        """The kinematics of one arm (built on first use; KeyError for an arm it lacks)."""
+        if side not in self._arms:
+            self._arms[side] = ArmKinematics(self.robot.name, side, self.robot.mjcf)
+        return self._arms[side]
 
     def is_hinge(self, joint: str) -> bool:
         if joint not in self.servos:
