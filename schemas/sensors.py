@@ -46,6 +46,12 @@ class RgbdFrame(Stamped):
     T_world_camera: Pose
     depth_min: float = Field(0.0, ge=0, description="closest valid depth of the sensor, m")
     depth_max: float = Field(0.0, ge=0, description="farthest valid depth of the sensor, m")
+    joint_names: Annotated[list[str], Dim("j")] = Field(
+        default_factory=list,
+        description="the robot's joints at capture (with joint_positions): perception masks "
+        "the robot's own body with them",
+    )
+    joint_positions: Annotated[np.ndarray, Array("float64", ("j",)), Finite()] | None = None
 
     @model_validator(mode="after")
     def _consistent(self) -> RgbdFrame:
@@ -53,6 +59,8 @@ class RgbdFrame(Stamped):
         if image is None:
             raise ValueError("a frame carries rgb, depth, or both")
         h, w = image.shape[:2]
+        if self.joint_names and self.joint_positions is None:
+            raise ValueError("joint_names without joint_positions")
         if (w, h) != (self.intrinsics.width, self.intrinsics.height):
             raise ValueError(
                 f"image is {w}×{h} but intrinsics say "

@@ -18,6 +18,11 @@ class PerceptionSettings(ServiceSettings):
     depth_min: float = Field(0.35, ge=0, description="nearest depth used, m")
     depth_max: float = Field(3.0, gt=0, description="farthest depth used, m")
     stride: int = Field(2, ge=1, le=4, description="pixel stride of the organized cloud")
+    self_mask: bool = Field(
+        True,
+        description="mask the robot's own body (its MJCF posed by the joints a frame carries)",
+    )
+    self_mask_margin: float = Field(0.02, ge=0, description="grown by this much, m")
     max_pixels: int = Field(1280 * 960, gt=0, description="larger frames are dropped")
     seed: int = Field(0, description="seed of RANSAC")
     queue: int = Field(

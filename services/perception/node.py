@@ -7,6 +7,8 @@ the frames it wins or held. Each worker keeps at most ``queue`` of its frames wa
 falls behind, the oldest is dropped as stale, counted, so it never works on old frames.
 A frame without depth, or larger than ``max_pixels``, is dropped and counted; an empty or
 all-invalid frame gives an observation with no primitives. Observations carry the worker.
+A frame that carries the robot's joint positions has the robot's own body masked out first
+(``self_mask.py``), so the robot never perceives its arms and hands as scene primitives.
 """
 
 from __future__ import annotations
@@ -15,14 +17,18 @@ import logging
 import threading
 from collections import deque
 
+import numpy as np
+
 from schemas import RgbdFrame
 from schemas.codec import peek
 from services.common.frames import usable_depth_frame
 from services.common.membership import Members
 from services.common.node import Node
 from services.common.realtime import foreground
+from services.common.robots import robot_mjcf
 from services.perception.config import PerceptionSettings
 from services.perception.pipeline import Perception, PerceptionConfig, observation
+from services.perception.self_mask import RobotBody
 
 log = logging.getLogger("avs.perception")
 
@@ -46,6 +52,7 @@ class PerceptionNode:
         self.pending: deque[RgbdFrame] = deque()
         self.ready = threading.Condition()
         self.skipped = 0
+        self.body: RobotBody | None = None
         node.subscribe(self.key, RgbdFrame, self.on_arrival, name="on_arrival", accept=self.mine)
         node._start_thread(self.work, "perception:work")
 
@@ -86,12 +93,34 @@ class PerceptionNode:
     def close(self) -> None:
         self.members.close()
 
+    def own_body(self, frame: RgbdFrame) -> np.ndarray | None:
+        """The pixels of the robot's own body in the frame, from the joint positions it
+        carries (None: no joints, self-masking off, or a robot without a model here)."""
+        if not self.settings.self_mask or not frame.joint_names or frame.depth is None:
+            return None
+        if self.body is None:
+            try:
+                self.body = RobotBody(robot_mjcf(self.node.keys.robot),
+                                      self.settings.self_mask_margin)  # fmt: skip
+            except FileNotFoundError as e:
+                self.settings.self_mask = False
+                log.warning("not masking the robot's own body: %s", e)
+                return None
+        K = frame.intrinsics
+        joints = dict(zip(frame.joint_names, frame.joint_positions.tolist(), strict=True))
+        try:
+            mask = self.body.mask(frame.depth, K.fx, K.fy, K.cx, K.cy, frame.camera, joints)
+        except KeyError:  # a camera the robot's model does not have (a replayed recording)
+            return None
+        self.node.metrics.gauge("self_masked_px", int(mask.sum()))
+        return mask
+
     def on_frame(self, frame: RgbdFrame) -> None:
         frame = usable_depth_frame(self.node, self.key, frame, self.settings.max_pixels)
         if frame is None:
             return
         result = self.perception.perceive(
-            frame.depth, frame.rgb, frame.intrinsics, frame.T_world_camera
+            frame.depth, frame.rgb, frame.intrinsics, frame.T_world_camera, self.own_body(frame)
         )
         c = self.perception.config
         self.out.put(

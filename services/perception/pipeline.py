@@ -85,8 +85,12 @@ class Perception:
         rgb: np.ndarray | None,
         intrinsics: CameraIntrinsics,
         T_world_camera: np.ndarray,
+        mask: np.ndarray | None = None,
     ) -> Perceived:
+        """``mask``: pixels to leave out (the robot's own body, ``self_mask``)."""
         c = self.config
+        if mask is not None and mask.any():
+            depth = np.where(mask, np.float32(0), np.asarray(depth, np.float32))
         rng = np.random.default_rng(c.seed)
         timings: dict[str, float] = {}
         t = time.perf_counter()

@@ -26,9 +26,12 @@ def frame(
     stamp: float,
     seq: int,
     rng: np.random.Generator | None,
+    joints: tuple[list[str], np.ndarray] | None = None,
 ) -> RgbdFrame:
     """Render the last snapshot: RGB, and depth for RGB-D cameras (0 outside the sensor's
-    range; structured-light noise drawn from ``rng`` unless it is None)."""
+    range; structured-light noise drawn from ``rng`` unless it is None). The frame carries the
+    joint positions of the snapshot's instant (``joints``; default: the world's now), which
+    perception masks the robot's own body with."""
     info = world.robot.camera(camera)
     rgb, depth = renderer.render(depth=info.depth_range is not None)
     K = intrinsics(world.model, world.cameras[camera], renderer.width, renderer.height)
@@ -38,6 +41,7 @@ def frame(
         depth = np.where((depth >= dmin) & (depth <= dmax), depth, 0.0).astype(np.float32)
         if rng is not None:
             depth = noise.structured_light(depth, rng, K.fx)
+    names, q = joints if joints is not None else world.joint_state()[:2]
     return RgbdFrame(
         seq=seq,
         stamp=stamp,
@@ -48,6 +52,8 @@ def frame(
         T_world_camera=T_world_camera,
         depth_min=dmin,
         depth_max=dmax,
+        joint_names=names,
+        joint_positions=q,
     )
 
 

@@ -257,13 +257,14 @@ class SimNode:
         """Render one camera at the current state (render thread only)."""
         with self.lock:
             T, stamp = capture.snapshot(self.world, renderer, camera)
+            joints = self.world.joint_state()[:2]
             if self.sensors is not None:  # the pose the robot believes the camera has
                 x, y, yaw, *_ = self.world.base_pose()
                 self.sensors.odometry.update((x, y, yaw))
                 T = self.sensors.odometry.T_world_odom() @ T
         rng = self.rng if self.settings.noise else None
         return capture.frame(
-            self.world, renderer, camera, T, stamp, self._next_seq(f"rgbd/{camera}"), rng
+            self.world, renderer, camera, T, stamp, self._next_seq(f"rgbd/{camera}"), rng, joints
         )
 
     def publish_frames(self, renderer: CameraRenderer) -> int:
