@@ -172,3 +172,53 @@ def gaze_plots(modes: dict[str, dict], out: Path) -> list[Path]:
         ax.legend(fontsize=8)
         paths.append(_save(fig, out / f"{name}.png"))
     return paths
+
+
+def grasp_plots(runs: dict[str, object], out: Path, acuity: float) -> list[Path]:
+    """The grasping-while-moving experiment (thesis 5.4.2): ``uncertainty.png`` (Fig. 5.12: σ of
+    the cup's localisation, Eq. 5.2, over time, with the raised task acuity and when it was
+    raised), ``flow.png`` (optical-flow error per frame pair; gaze shifts marked) and
+    ``frames.png`` (a strip of the left foveal camera, one row per mode). ``runs``: mode →
+    ``GraspRun``."""
+    plt = _plt()
+    paths = []
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    for mode, run in runs.items():
+        if run.uncertainty:
+            t, s = np.array(run.uncertainty).T
+            line = ax.plot(t, 1e3 * s, lw=1.2, label=mode)[0]
+            if run.acuity_raised_s is not None:
+                ax.axvline(run.acuity_raised_s, color=line.get_color(), ls=":", lw=1)
+    ax.axhline(1e3 * acuity, color="k", ls="--", lw=1, label="task acuity when grasping")
+    ax.set_yscale("log")
+    ax.set_xlabel("time, s (dotted: the servo raises the cup's acuity)")
+    ax.set_ylabel("σ = det(Σ)^(1/6), mm")
+    ax.set_title("cup localisation uncertainty (Eq. 5.2)")
+    ax.legend(fontsize=8)
+    paths.append(_save(fig, out / "uncertainty.png"))
+
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    for mode, run in runs.items():
+        ax.plot(run.times[1:], run.flow, lw=0.8, label=mode)
+    shifts = next(iter(runs.values())).targets
+    for t, _ in shifts:
+        ax.axvline(t, color="0.8", lw=0.5, zorder=0)
+    ax.set_xlabel("time, s (grey: gaze shifts of the first run)")
+    ax.set_title("optical-flow error, deg/s (Farnebäck RMSE)")
+    ax.legend(fontsize=8)
+    paths.append(_save(fig, out / "flow.png"))
+
+    rows = []
+    for run in runs.values():
+        frames = [f for _, f in run.strip][:8]
+        if frames:
+            frames += [np.zeros_like(frames[0])] * (8 - len(frames))
+            rows.append(np.hstack([f[::4, ::4] for f in frames]))
+    if rows:
+        fig, ax = plt.subplots(figsize=(12, 1.3 * len(rows)))
+        ax.imshow(np.vstack(rows))
+        ax.set_axis_off()
+        ax.set_title(" / ".join(f"row {i + 1}: {m}" for i, m in enumerate(runs))
+                     + " — left foveal camera, one frame a second", fontsize=9)  # fmt: skip
+        paths.append(_save(fig, out / "frames.png"))
+    return paths

@@ -145,6 +145,7 @@ def test_cup_grasped_while_driving_past_lifts_with_the_hand(left: ArmKinematics)
     cup = world.model.body("cup").id
     z0 = float(world.data.xpos[cup][2])
     servo = GraspServo(left)
+    world.place(base=(1.0, 0.0, 0.0))  # on the line past the table (y = 0), facing along it
     world.set_base_goal(5.0, 0.0, 0.0)
     phases = []
     while world.time < 30.0 and servo.phase != "done":
