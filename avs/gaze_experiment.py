@@ -9,6 +9,12 @@ during the exposure gives a blurred image, as a real one does. Per frame: the op
 error against the previous frame, the perceptual blur, and whether the object is localised;
 once for the cup (HSV segmentation), once for the textured box (feature matching).
 
+``exposure_mode`` is the camera's exposure (Fig. 5.9b, ``services/sim/exposure.py``): "fixed"
+keeps the gain of the still view, "auto" runs the camera's auto-exposure loop, which follows
+the brighter and darker views of a swing a frame late and with a time constant, so frames come
+over- or under-exposed. Both start from the same still frame (the loop settled on it), so the
+finders are the same in both modes.
+
 With ``sensors`` (the default) the controller sees what the live stack gives it: the robot's
 gyro with white noise and a drifting bias, joint states from noisy 14-bit encoders at 200 Hz,
 each 2 ms late (``services/sim/sensors.py``), and the gyro sample of each joint state's instant
@@ -29,6 +35,7 @@ from services.gaze.config import FIXATING
 from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics
 from services.gaze.sensing import nearest
 from services.gaze.stabiliser import GazeStabiliser, StabiliserConfig
+from services.sim.exposure import Exposure, mean_luma
 from services.sim.render import CameraRenderer, intrinsics
 from services.sim.robots import ROBOTS
 from services.sim.sensors import RobotSensors
@@ -49,7 +56,9 @@ class GazeExperimentConfig:
     stabilize: bool = True
     camera: str = "left_foveal"
     fps: float = 30.0
-    exposure: float = 0.02  # s of light per frame
+    exposure: float = 0.02  # s of light per frame (integration time: the blur)
+    exposure_mode: str = "fixed"  # the gain: "fixed", or "auto" (the camera's AE loop)
+    ae_tau: float = 0.4  # s, the AE loop's time constant
     subframes: int = 4  # renders averaged over the exposure
     settle: float = 1.0  # s of fixating before the disturbance starts
     sensors: bool = True  # the robot's sensor models (noise, bias, latency), else exact state
@@ -64,6 +73,8 @@ class ObjectRun:
     blur: list[float]
     found: list[bool]
     error_deg: list[float]  # the true gaze error at each frame
+    brightness: list[float]  # the frame's mean luma, 0-255
+    gain: list[float]  # the exposure gain of the frame (1: the still view's)
 
 
 def _corners(model, data, body: str) -> np.ndarray:
@@ -89,6 +100,8 @@ def run_object(
     config: GazeExperimentConfig, name: str, progress: Callable[[float], None] | None = None
 ) -> ObjectRun:
     c = config
+    if c.exposure_mode not in ("fixed", "auto"):
+        raise ValueError(f"exposure_mode is 'fixed' or 'auto', not {c.exposure_mode!r}")
     robot = ROBOTS[c.robot]
     world = World(c.scene, robot)
     body = OBJECTS[name]
@@ -151,6 +164,8 @@ def run_object(
         uv = _project(world.T_world_camera(c.camera), K, _corners(world.model, world.data, body))
         lo, hi = np.floor(uv.min(0)).astype(int), np.ceil(uv.max(0)).astype(int)
         finder = TextureFinder.from_reference(still, (*np.clip(lo, 0, 639), *np.clip(hi, 0, 479)))
+    # the AE's target is the still view's brightness: the loop has settled on it, at gain 1
+    exposure = Exposure(mean_luma(still), auto=c.exposure_mode == "auto", tau=c.ae_tau)
     world.set_disturbance(c.disturbance, math.radians(c.amplitude), c.frequency)
     t0, steps = world.time, round(c.duration / world.timestep)
     period = round(1 / (c.fps * world.timestep))
@@ -158,7 +173,7 @@ def run_object(
     fps = 1.0 / (period * world.timestep)  # the frame rate the step grid allows
     # the render steps of frame k: its exposure ends at the frame's time
     offsets = np.unique(np.round(np.linspace(-span, 0, c.subframes)).astype(int))
-    run = ObjectRun([], [], [], [], [])
+    run = ObjectRun([], [], [], [], [], [], [])
     light, prev = None, None
     for k in range(1, steps + 1):
         if c.stabilize:
@@ -169,12 +184,14 @@ def run_object(
             img = render()
             light = img if light is None else light + img
         if in_frame == 0:
-            frame = (light / len(offsets)).astype(np.uint8)
+            run.gain.append(exposure.gain)
+            frame = exposure.frame(light / len(offsets), 1 / fps)
             light = None
             T = world.T_world_camera(c.camera)
             where = _project(T, K, target)[0]
             run.times.append(world.time - t0)
             run.blur.append(blur(frame))
+            run.brightness.append(mean_luma(frame))
             run.found.append(finder.found(frame, where))
             to, z = target - T[:3, 3], T[:3, 2]
             run.error_deg.append(math.degrees(math.atan2(np.linalg.norm(np.cross(z, to)), z @ to)))
@@ -190,13 +207,19 @@ def run_object(
 
 
 def summarise(runs: dict[str, ObjectRun]) -> dict:
-    """metrics.json: flow error and blur over every frame of both runs, success per object."""
+    """metrics.json: flow error, blur, brightness and exposure gain over every frame of both
+    runs, success per object."""
     flow = np.concatenate([r.flow for r in runs.values()])
     b = np.concatenate([r.blur for r in runs.values()])
+    lum = np.concatenate([r.brightness for r in runs.values()])
+    gain = np.concatenate([r.gain for r in runs.values()])
     return {
         "flow_rmse_deg_s": {"mean": float(flow.mean()), "std": float(flow.std()),
                             "max": float(flow.max())},
         "blur": {"mean": float(b.mean()), "max": float(b.max())},
+        "brightness": {"mean": float(lum.mean()), "min": float(lum.min()),
+                       "max": float(lum.max())},
+        "exposure_gain": {"min": float(gain.min()), "max": float(gain.max())},
         "localization_success": {k: float(np.mean(r.found)) for k, r in runs.items()},
         "gaze_error_deg": {k: float(np.sqrt(np.mean(np.square(r.error_deg))))
                            for k, r in runs.items()},

@@ -153,13 +153,15 @@ def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Pa
 
 def gaze_plots(modes: dict[str, dict], out: Path) -> list[Path]:
     """The gaze experiment over time (thesis Fig. 5.10): ``flow.png`` (optical-flow error per
-    frame pair, deg/s) and ``blur.png`` (Crete et al. blur per frame), one line per mode
-    (stabilised / unstabilised) and object run."""
+    frame pair, deg/s), ``blur.png`` (Crete et al. blur per frame) and ``brightness.png`` (each
+    frame's mean luma: what the exposure made of the view), one line per mode (stabilised /
+    unstabilised) and object run."""
     plt = _plt()
     paths = []
     for name, attr, title in (
         ("flow", "flow", "optical-flow error, deg/s (Farnebäck RMSE)"),
         ("blur", "blur", "perceptual blur (Crete et al. 2007), 0 sharp … 1 blurred"),
+        ("brightness", "brightness", "frame brightness, mean luma 0-255"),
     ):
         fig, ax = plt.subplots(figsize=(6.4, 3.6))
         for mode, runs in modes.items():

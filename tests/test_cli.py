@@ -53,6 +53,7 @@ def test_every_command_has_help(command):
         ["fuse", "--voxel", "nan"],
         ["run", "--views", "0"],
         ["explore", "--voxel", "fine"],
+        ["gaze-experiment", "--exposure", "bright"],
     ],
     ids=" ".join,
 )

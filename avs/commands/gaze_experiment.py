@@ -1,6 +1,8 @@
 """``avs gaze-experiment``: thesis 5.4.1 in the sim: the foveal camera while the hip swings,
-with the gaze stabiliser on or off (``--compare``: both, printed as thesis Table 5.1).
-Writes ``DIR/metrics.json``, ``flow.png`` (optical-flow error over time) and ``blur.png``."""
+with the gaze stabiliser on or off (``--compare``: both, printed as thesis Table 5.1), the
+camera's exposure fixed or automatic (``--exposure fixed,auto``: each, and the localisation
+success of every combination as in thesis Fig. 5.9b). Writes ``DIR/metrics.json``,
+``flow.png`` (optical-flow error over time), ``blur.png`` and ``brightness.png``."""
 
 from __future__ import annotations
 
@@ -30,9 +32,23 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="the robot's sensor models: gyro noise and bias, encoder noise and quantisation, "
         "joint-state latency (off: the simulator's exact state every step)",
     )  # fmt: skip
+    p.add_argument(
+        "--exposure", type=exposure_modes, default="fixed", metavar="fixed|auto|fixed,auto",
+        help="the camera's exposure gain (thesis Fig. 5.9b): fixed where the still view set it, "
+        "or the camera's auto-exposure loop (time constant 0.4 s); several: each in DIR/<mode>/ "
+        "and the localisation success of every combination. Not the integration time (20 ms)",
+    )  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="the sensor models' random stream")
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=_run)
+
+
+def exposure_modes(text: str) -> list[str]:
+    """``fixed``, ``auto`` or both, comma-separated, each once."""
+    modes = [m.strip() for m in text.split(",")]
+    if not all(m in ("fixed", "auto") for m in modes) or len(set(modes)) != len(modes):
+        raise argparse.ArgumentTypeError(f"fixed, auto or fixed,auto, not {text!r}")
+    return modes
 
 
 def _bar(label: str):
@@ -56,7 +72,8 @@ def experiment(config, out: Path) -> dict:
     mode = "stabilised" if config.stabilize else "unstabilised"
     runs = {}
     for name in ("cup", "textured"):
-        runs[name] = run_object(config, name, _bar(f"{mode:>12} {name:<8}"))
+        label = f"{mode:>12} {config.exposure_mode:<5} {name:<8}"
+        runs[name] = run_object(config, name, _bar(label))
         print(file=sys.stderr)
     metrics = summarise(runs) | {"config": asdict(config)}
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
@@ -65,7 +82,9 @@ def experiment(config, out: Path) -> dict:
 
 
 def table(off: dict, on: dict) -> str:
-    """Thesis Table 5.1's layout: the flow error unstabilised, stabilised and the decrease."""
+    """Thesis Table 5.1's layout: the flow error unstabilised, stabilised and the decrease;
+    then localisation success, and the range of the exposure's gain and the frames' brightness
+    (the auto exposure's work)."""
     fo, fn = off["flow_rmse_deg_s"], on["flow_rmse_deg_s"]
     rows = [
         ("flow RMSE mean (deg/s)", fo["mean"], fn["mean"]),
@@ -79,6 +98,21 @@ def table(off: dict, on: dict) -> str:
     for k in ("cup", "textured"):
         a, b = off["localization_success"][k], on["localization_success"][k]
         lines.append(f"{'localised: ' + k:<24}{100 * a:>13.0f}%{100 * b:>11.0f}%")
+    for name, key, f in (("exposure gain", "exposure_gain", ".2f"),
+                         ("frame brightness (luma)", "brightness", ".0f")):  # fmt: skip
+        a, b = (f"{m[key]['min']:{f}}-{m[key]['max']:{f}}" for m in (off, on))
+        lines.append(f"{name:<24}{a:>14}{b:>12}")
+    return "\n".join(lines)
+
+
+def success_table(summaries: dict[str, dict]) -> str:
+    """Thesis Fig. 5.9b as a table: localisation success per object and exposure mode,
+    unstabilised and stabilised (``summaries``: a --compare summary per exposure mode)."""
+    lines = [f"{'localised':<26}{'unstabilised':>14}{'stabilised':>12}"]
+    for obj in ("cup", "textured"):
+        for mode, m in summaries.items():
+            a, b = (m[k]["localization_success"][obj] for k in ("off", "on"))
+            lines.append(f"{obj + ', ' + mode + ' exposure':<26}{100 * a:>13.0f}%{100 * b:>11.0f}%")
     return "\n".join(lines)
 
 
@@ -86,29 +120,46 @@ def _run(args: argparse.Namespace) -> int:
     from avs.gaze_experiment import GazeExperimentConfig
     from avs.report import gaze_plots
 
-    def config(on: bool) -> GazeExperimentConfig:
+    def config(on: bool, exposure: str) -> GazeExperimentConfig:
         return GazeExperimentConfig(
             robot=args.robot, scene=args.scene, disturbance=args.disturbance,
             amplitude=args.amplitude, frequency=args.frequency, duration=args.duration,
-            stabilize=on, sensors=args.noise == "on", seed=args.seed,
+            stabilize=on, exposure_mode=exposure, sensors=args.noise == "on", seed=args.seed,
         )  # fmt: skip
 
-    if not args.compare:
-        m = experiment(config(args.stabilize == "on"), args.out)
-        f = m["flow_rmse_deg_s"]
-        print(f"flow RMSE {f['mean']:.3f} ± {f['std']:.3f} deg/s (max {f['max']:.3f}), blur "
-              f"{m['blur']['mean']:.3f}, localised: cup {m['localization_success']['cup']:.0%}, "
-              f"textured {m['localization_success']['textured']:.0%}")  # fmt: skip
-        print(f"wrote {args.out / 'metrics.json'}, flow.png, blur.png")
-        return 0
-    off = experiment(config(False), args.out / "off")
-    on = experiment(config(True), args.out / "on")
-    summary = {
-        k: {m: v for m, v in r.items() if m != "runs"} for k, r in (("off", off), ("on", on))
-    }
-    summary["flow_decrease"] = 1 - on["flow_rmse_deg_s"]["mean"] / off["flow_rmse_deg_s"]["mean"]
-    (args.out / "metrics.json").write_text(json.dumps(summary, indent=2))
-    gaze_plots({"unstabilised": off["runs"], "stabilised": on["runs"]}, args.out)
-    print(table(off, on))
-    print(f"wrote {args.out}/metrics.json (and off/, on/), flow.png, blur.png")
+    results = {}
+    for exposure in args.exposure:
+        out = args.out if len(args.exposure) == 1 else args.out / exposure
+        if not args.compare:
+            m = experiment(config(args.stabilize == "on", exposure), out)
+            f, found = m["flow_rmse_deg_s"], m["localization_success"]
+            print(f"{exposure} exposure: flow RMSE {f['mean']:.3f} ± {f['std']:.3f} deg/s (max "
+                  f"{f['max']:.3f}), blur {m['blur']['mean']:.3f}, localised: cup "
+                  f"{found['cup']:.0%}, textured {found['textured']:.0%}")  # fmt: skip
+            results[exposure] = {k: v for k, v in m.items() if k != "runs"}
+            continue
+        off = experiment(config(False, exposure), out / "off")
+        on = experiment(config(True, exposure), out / "on")
+        summary = {
+            k: {m: v for m, v in r.items() if m != "runs"} for k, r in (("off", off), ("on", on))
+        }
+        summary["flow_decrease"] = (
+            1 - on["flow_rmse_deg_s"]["mean"] / off["flow_rmse_deg_s"]["mean"]
+        )
+        (out / "metrics.json").write_text(json.dumps(summary, indent=2))
+        gaze_plots({"unstabilised": off["runs"], "stabilised": on["runs"]}, out)
+        if len(args.exposure) > 1:
+            print(f"{exposure} exposure")
+        print(table(off, on))
+        results[exposure] = summary
+    if len(args.exposure) > 1:
+        (args.out / "metrics.json").write_text(json.dumps(results, indent=2))
+        if args.compare:
+            print(success_table(results))
+        where = ", ".join(f"{e}/" for e in args.exposure)
+        print(f"wrote {args.out}/metrics.json and {where} (each: metrics.json, plots)")
+    elif args.compare:
+        print(f"wrote {args.out}/metrics.json (and off/, on/), flow.png, blur.png, brightness.png")
+    else:
+        print(f"wrote {args.out / 'metrics.json'}, flow.png, blur.png, brightness.png")
     return 0
