@@ -218,10 +218,9 @@ def registered_cloud(
     margin: float = 0.03,
     cap: int = MAX_ROI_CLOUD,
 ) -> CloudFrame:
-    """The registered cloud of ``box`` (default: the roi; grown by ``margin``; the whole cloud
-    without either):
-    every view so far merged in the map, voxel-downsampled to ``voxel`` (at most ``cap``
-    points, evenly spread) — what ``pc`` fusion re-extracts the scene from (thesis 3.3.1,
+    """The registered cloud of ``box`` (default: the roi; grown by ``margin``; without either,
+    all of it), every view so far merged in the map, voxel-downsampled to ``voxel`` (at most
+    ``cap`` points, evenly spread): what ``pc`` fusion re-extracts the scene from (thesis 3.3.1,
     Table 3.1: P^{1,t} = P_1 ∪ … ∪ P_t). Its pose is ``frame``'s camera in the map (odometry
     corrected by registration), each point carries the camera centre it was seen from."""
     points, seen_from, colours = memory.cloud, memory._viewpoints(), memory.colours
