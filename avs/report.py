@@ -62,6 +62,69 @@ def series_plots(runs: dict[str, list[dict]], out: Path) -> list[Path]:
     return paths
 
 
+def f1_spread(episodes: list[dict]) -> dict:
+    """Support F1 per view over episodes (seeds): median, min and max of those that took each
+    view, how many did, and each episode's series."""
+    series = [[r["support_f1"] for r in e["views"]] for e in episodes]
+    n = max((len(s) for s in series), default=0)
+    values = np.full((len(series), n), np.nan)
+    for i, s in enumerate(series):
+        values[i, : len(s)] = s
+    taken = np.isfinite(values).sum(axis=0)
+    with np.errstate(all="ignore"):  # (no column is all-NaN: every view was taken once)
+        median, lo, hi = (np.nanmedian(values, 0), np.nanmin(values, 0), np.nanmax(values, 0))
+    return {
+        "views": list(range(1, n + 1)),
+        "median": [round(float(v), 4) for v in median],
+        "min": [round(float(v), 4) for v in lo],
+        "max": [round(float(v), 4) for v in hi],
+        "episodes_at_view": [int(v) for v in taken],
+        "seeds": [e["seed"] for e in episodes],
+        "per_seed": [[round(float(v), 4) for v in s] for s in series],
+        "final": [round(float(s[-1]), 4) for s in series if s],
+    }
+
+
+def fusion_plot(runs: dict[str, list[dict]], out: Path) -> Path:
+    """Thesis Fig. 4.8: support-graph F1 per view of each strategy with each fusion mode (runs
+    keyed ``strategy/fusion``): a colour per fusion mode, a line style per strategy, the median
+    over the seeds as the line and their min-max as the band (each line shifted a little
+    sideways so that equal ones stay visible). Writes ``fusion_f1.png`` and the numbers behind
+    it, ``fusion_f1.json``."""
+    from matplotlib.ticker import MaxNLocator
+
+    plt = _plt()
+    keys = list(runs)
+    fusions = list(dict.fromkeys(k.rpartition("/")[2] for k in keys))
+    strategies = list(dict.fromkeys(k.rpartition("/")[0] or k for k in keys))
+    colours = dict(zip(fusions, plt.rcParams["axes.prop_cycle"].by_key()["color"], strict=False))
+    styles = dict(zip(strategies, ["-", "--", ":", "-."] * 4, strict=False))
+    markers = dict(zip(strategies, ["o", "s", "^", "D"] * 4, strict=False))
+    fig, ax = plt.subplots(figsize=(7.0, 4.2))
+    numbers = {}
+    for i, k in enumerate(keys):
+        strategy, _, fusion = k.rpartition("/")
+        strategy = strategy or k
+        spread = f1_spread(runs[k])
+        numbers[k] = {"strategy": strategy, "fusion": fusion, **spread}
+        if not spread["views"]:
+            continue
+        x = np.array(spread["views"]) + 0.04 * (i - (len(keys) - 1) / 2)
+        c = colours.get(fusion)
+        ax.plot(x, spread["median"], ls=styles[strategy], marker=markers[strategy], ms=4,
+                color=c, label=f"{strategy} {fusion.upper()}")  # fmt: skip
+        if len(runs[k]) > 1:
+            ax.fill_between(x, spread["min"], spread["max"], color=c, alpha=0.12)
+    ax.set_xlabel("view")
+    ax.set_ylabel("support-graph F1 (Eq. 4.14)")
+    ax.set_ylim(-0.02, 1.05)
+    ax.set_title("F1 per view by fusion mode (median, min-max over seeds)")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.legend(fontsize=8, loc="lower right")
+    (out / "fusion_f1.json").write_text(json.dumps(numbers, indent=2))
+    return _save(fig, out / "fusion_f1.png")
+
+
 def gain_plot(runs: dict[str, list[dict]], out: Path) -> Path:
     """Predicted information gain of each view (the planner's, Eq. 4.6) against the gain it
     realised (the same measure, on what the camera then saw): a large gap means the planner

@@ -35,7 +35,14 @@ from schemas.scene import (
     SphereModel,
     SupportEdge,
 )
-from schemas.sensors import BasePose, CameraIntrinsics, ImuSample, JointState, RgbdFrame
+from schemas.sensors import (
+    BasePose,
+    CameraIntrinsics,
+    CloudFrame,
+    ImuSample,
+    JointState,
+    RgbdFrame,
+)
 from schemas.sim import GroundTruth, GroundTruthObject, GroundTruthQuery, SimControl, SimStatus
 
 __all__ = [
@@ -51,6 +58,7 @@ __all__ = [
     "BoxModel",
     "BoxQuery",
     "CameraIntrinsics",
+    "CloudFrame",
     "CodecError",
     "CylinderModel",
     "EgoSphereSnapshot",

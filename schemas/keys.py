@@ -47,6 +47,7 @@ class KeySpec:
 # fmt: off
 KEY_TABLE: tuple[KeySpec, ...] = (
     KeySpec("sensors/rgbd/*", ("RgbdFrame",), "stream", "sim", "block", "data", False, "5-30 Hz"),
+    KeySpec("sensors/cloud/*", ("CloudFrame",), "stream", "scene_memory", "block", "data", False, "per integrated frame (pc, pc+sg fusion)"),
     KeySpec("sensors/imu", ("ImuSample",), "stream", "sim", "drop", "real_time", True, "500-1000 Hz"),
     KeySpec("state/joints", ("JointState",), "stream", "sim", "drop", "interactive_high", True, "500-1000 Hz"),
     KeySpec("state/base", ("BasePose",), "stream", "sim", "drop", "interactive_high", True, "100 Hz"),
@@ -98,6 +99,9 @@ class Keys:
 
     def rgbd(self, camera: str = "*") -> str:
         return self.key(f"sensors/rgbd/{self._chunk_or_star(camera)}")
+
+    def cloud_frame(self, camera: str = "*") -> str:
+        return self.key(f"sensors/cloud/{self._chunk_or_star(camera)}")
 
     def imu(self) -> str:
         return self.key("sensors/imu")

@@ -69,6 +69,26 @@ class RgbdFrame(Stamped):
         return self
 
 
+class CloudFrame(Stamped):
+    """A world-frame point cloud to perceive as one observation (sensors/cloud/<camera>): in
+    ``pc`` / ``pc+sg`` fusion the scene memory's registered cloud of the roi, every view so far
+    merged and voxel-downsampled (thesis 3.3.1), published after each integrated frame. Its
+    pose and intrinsics are those of that frame (the observation's, for fusion and
+    affordances); ``viewpoints`` says where each point was seen from (its normal faces it)."""
+
+    camera: str = Field(min_length=1, description="the name observations of it carry")
+    frame_seq: int = Field(ge=0, description="seq of the RgbdFrame that completed the cloud")
+    T_world_camera: Pose
+    intrinsics: CameraIntrinsics
+    points: Annotated[np.ndarray, Array("float32", ("n", 3), description="world, m")]
+    viewpoints: Annotated[
+        np.ndarray, Array("float32", ("n", 3), description="optical centre that saw each point")
+    ]
+    colours: Annotated[np.ndarray, Array("uint8", ("n", 3))] | None = None
+    voxel_size: float = Field(0.0, ge=0, description="downsampling voxel, 0 if none")
+    depth_max: float = Field(0.0, ge=0, description="farthest valid depth of the sensor, m")
+
+
 class ImuSample(Stamped):
     """Head IMU: gyro (rad/s) and accelerometer (specific force, m/s²) in the IMU frame, plus the
     IMU frame's orientation in the world."""

@@ -50,6 +50,8 @@ def test_every_command_has_help(command):
     [
         ["explore", "--views", "-1"],
         ["compare", "--jobs", "0"],
+        ["compare", "--fusion", "pc,xx"],
+        ["explore", "--fusion", "pc,sg"],
         ["fuse", "--voxel", "nan"],
         ["run", "--views", "0"],
         ["explore", "--voxel", "fine"],

@@ -31,3 +31,21 @@ def positive_float(text: str) -> float:
     if not value > 0 or value == float("inf"):
         raise argparse.ArgumentTypeError(f"must be a positive number, got {text}")
     return value
+
+
+FUSIONS = ("pc", "sg", "pc+sg")
+
+
+def fusion_list(text: str) -> list[str]:
+    """A comma list of fusion modes (``pc,sg,pc+sg``), each known, none twice."""
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError("no fusion mode given")
+    unknown = [n for n in names if n not in FUSIONS]
+    if unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown fusion {', '.join(map(repr, unknown))} (choose from {', '.join(FUSIONS)})"
+        )
+    if len(set(names)) < len(names):
+        raise argparse.ArgumentTypeError(f"a fusion mode given twice in {text!r}")
+    return names

@@ -2,7 +2,9 @@
 lockstep, perception, scene memory, nbv over a loopback Zenoh router): ``DIR/metrics.json``,
 ``f1.png``, ``unknown_voxels.png``, ``path_cost.png``, ``views_map.png`` and a self-contained
 ``report.html``. ``avs compare``: several strategies over several seeds, side by side (thesis
-Fig. 4.8, 4.11, 4.12)."""
+Fig. 4.8, 4.11, 4.12); with several fusion modes (``--fusion pc,sg,pc+sg``) every strategy
+runs with each, runs are keyed ``strategy/fusion``, and ``fusion_f1.png`` / ``fusion_f1.json``
+give the support-graph F1 per view of each (median and min-max over the seeds: Fig. 4.8)."""
 
 from __future__ import annotations
 
@@ -14,16 +16,23 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
-from avs.commands._args import positive_float, positive_int
+from avs.commands._args import FUSIONS, fusion_list, positive_float, positive_int
 
 
-def _episode_arguments(p: argparse.ArgumentParser) -> None:
+def _episode_arguments(p: argparse.ArgumentParser, fusions: bool = False) -> None:
     p.add_argument("--scene", default="tabletop_occluded", help="scene name or MJCF file")
     p.add_argument("--robot", default="armar6")
     p.add_argument(
         "--sampling", choices=["equidistant", "random", "topdown"], default="equidistant"
     )
-    p.add_argument("--fusion", choices=["pc", "sg", "pc+sg"], default="sg")
+    if fusions:
+        p.add_argument(
+            "--fusion", type=fusion_list, default=["sg"], metavar="pc,sg,pc+sg",
+            help="support-graph combination, or a comma list of them: every strategy runs with "
+            "each, keyed strategy/fusion, and fusion_f1.png plots F1 per view (Fig. 4.8)",
+        )  # fmt: skip
+    else:
+        p.add_argument("--fusion", choices=FUSIONS, default="sg")
     p.add_argument("--views", type=positive_int, default=10, help="at most this many views (n)")
     p.add_argument("--voxel", type=positive_float, default=0.01, help="occupancy voxel, m")
     p.add_argument(
@@ -66,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    _episode_arguments(c)
+    _episode_arguments(c, fusions=True)
     c.add_argument("--strategies", default="utility,occupancy,random")
     c.add_argument("--seeds", type=positive_int, default=3)
     c.add_argument(
@@ -110,17 +119,20 @@ def run_episode(config, label: str, lines: bool = False) -> dict:
 def _config(args: argparse.Namespace, **kw):
     from avs.explore import EpisodeConfig
 
+    kw.setdefault("fusion", args.fusion)
     return EpisodeConfig(
-        scene=args.scene, robot=args.robot, sampling=args.sampling, fusion=args.fusion,
+        scene=args.scene, robot=args.robot, sampling=args.sampling,
         views=args.views, voxel=args.voxel, ig_measure=args.ig_measure, out=args.out,
         noise=args.noise == "on", registration=(args.registration or args.noise) == "on", **kw,
     )  # fmt: skip
 
 
-def write_outputs(out: Path, runs: dict[str, list[dict]], title: str) -> Path:
+def write_outputs(
+    out: Path, runs: dict[str, list[dict]], title: str, first: tuple[Path, ...] = ()
+) -> Path:
     from avs import report
 
-    images = report.series_plots(runs, out)
+    images = [*first, *report.series_plots(runs, out)]
     images.append(report.map_plot({k: v[0] for k, v in runs.items()}, out))
     tables = {f"{k} seed {e['seed']}": e for k, v in runs.items() for e in v}
     return report.html_report(title, images, tables, out)
@@ -158,15 +170,27 @@ def summary(result: dict) -> None:
 
 def _compare(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
-    base = _config(args)
+    fusions = args.fusion
+    base = _config(args, fusion=fusions[0])
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
+
+    def key(strategy: str, fusion: str) -> str:  # one fusion: the strategy alone, as before
+        return strategy if len(fusions) == 1 else f"{strategy}/{fusion}"
+
+    def directory(strategy: str, fusion: str, seed: int) -> Path:
+        return args.out / (f"{strategy}-{seed}" if len(fusions) == 1
+                           else f"{strategy}-{fusion}-{seed}")  # fmt: skip
+
     episodes = [
-        (strategy, replace(base, strategy=strategy, seed=seed, out=args.out / f"{strategy}-{seed}"))
+        (key(strategy, fusion),
+         replace(base, strategy=strategy, fusion=fusion, seed=seed,
+                 out=directory(strategy, fusion, seed)))
+        for fusion in fusions
         for strategy in strategies
         for seed in range(args.seeds)
-    ]
+    ]  # fmt: skip
     if args.jobs == 1:
-        results = [run_episode(c, f"{s} seed {c.seed}") for s, c in episodes]
+        results = [run_episode(c, f"{k} seed {c.seed}") for k, c in episodes]
     else:  # fresh interpreters (spawn): no Zenoh session or thread crosses a fork
         spawn = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(args.jobs, mp_context=spawn) as pool:
@@ -174,20 +198,28 @@ def _compare(args: argparse.Namespace) -> int:
                 pool.map(
                     run_episode,
                     [c for _, c in episodes],
-                    [f"{s} seed {c.seed}" for s, c in episodes],
+                    [f"{k} seed {c.seed}" for k, c in episodes],
                     [True] * len(episodes),
                 )
             )
     runs: dict[str, list[dict]] = {}
-    for (strategy, _), result in zip(episodes, results, strict=True):
-        runs.setdefault(strategy, []).append(result)
+    for (k, _), result in zip(episodes, results, strict=True):
+        runs.setdefault(k, []).append(result)
     (args.out / "metrics.json").write_text(json.dumps(runs, indent=2))
-    page = write_outputs(args.out, runs, f"{args.scene}: strategies compared")
-    for strategy, episodes in runs.items():
+    title, first = f"{args.scene}: strategies compared", ()
+    if len(fusions) > 1:
+        from avs import report
+
+        first = (report.fusion_plot(runs, args.out),)
+        title = f"{args.scene}: strategies and fusion modes compared (Fig. 4.8)"
+    page = write_outputs(args.out, runs, title, first)
+    for k, episodes in runs.items():
         last = [e["views"][-1] for e in episodes if e["views"]]
+        f1 = [round(r["support_f1"], 2) for r in last]
         print(
-            f"{strategy:10s} unknown {sorted(r['unknown_voxels'] for r in last)}  "
-            f"path cost {sorted(round(r['accumulated_path_cost'], 1) for r in last)}"
+            f"{k:16s} F1 {f1}  unknown {sorted(r['unknown_voxels'] for r in last)}  "
+            f"path cost {sorted(round(r['accumulated_path_cost'], 1) for r in last)}  "
+            f"views {[len(e['views']) for e in episodes]}"
         )
     print(f"wrote {args.out / 'metrics.json'}, plots and {page}")
     return 0

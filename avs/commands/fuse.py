@@ -75,6 +75,7 @@ class ViewMetrics:
     registration_ms: float = 0.0
     #: "accepted", or why the frame kept its prior; "" for the first frame and when off
     registration: str = ""
+    support_f1: float = 0.0  # the fused support graph against the truth (Eq. 4.14)
 
 
 def verdict(registration: dict | None) -> str:
@@ -134,9 +135,9 @@ def run_fusion(args: argparse.Namespace, progress=None):
     from avs.bounds import map_bounds
     from avs.commands.perceive import look_target
     from services.common.poses import pose_difference
-    from services.perception.pipeline import Perception, PerceptionConfig, observation
+    from services.perception.pipeline import Perception, cloud_observation, observation
     from services.scene_memory.fusion import FusionConfig
-    from services.scene_memory.memory import MemoryConfig, SceneMemory, registered_view
+    from services.scene_memory.memory import MemoryConfig, SceneMemory, registered_cloud
     from services.scene_memory.occupancy import OccupancyConfig
     from services.scene_memory.registration import RegistrationConfig
     from services.sim import capture, ground_truth
@@ -176,7 +177,6 @@ def run_fusion(args: argparse.Namespace, progress=None):
         odometry = Odometry(world.robot.sensors, np.random.default_rng([args.seed, 15]), pose0)
     renderer = CameraRenderer(world.model, 640, 480)
     perception = Perception()
-    registered = Perception(PerceptionConfig(stride=1))
     rng = np.random.default_rng(args.seed) if args.noise == "on" else None
     edges, closure = ground_truth.support_graph(world.model, world.data, world.info)
     segments_seen = []
@@ -203,10 +203,12 @@ def run_fusion(args: argparse.Namespace, progress=None):
                 frame.depth, frame.rgb, frame.intrinsics, frame.T_world_camera
             )
             obs = observation(result, frame, i, "fuse", 3.0, perception.config.stride)
-        else:
-            view = registered_view(memory, frame)
-            result = registered.perceive(view.depth, None, view.intrinsics, view.T_world_camera)
-            obs = observation(result, view, i, "fuse", 3.0, 1)
+        else:  # the registered cloud of the roi, every view so far: re-extracted whole
+            cloud = registered_cloud(memory, frame, box=roi)
+            result = perception.perceive_points(
+                cloud.points, cloud.viewpoints, cloud.colours, cloud.T_world_camera[:3, 3]
+            )
+            obs = cloud_observation(result, cloud, i, "fuse")
         update = memory.fuse(obs)
         segments_seen.append(  # the truth, where the true camera pose puts it
             evaluation.labelled_points(gt, frame.depth, frame.intrinsics, T_true)
@@ -216,6 +218,9 @@ def run_fusion(args: argparse.Namespace, progress=None):
             evaluation.merge_points(segments_seen),
             scene.primitives,
             scope=evaluation.bodies_in_roi(gt),
+        )
+        support = evaluation.score_support(
+            gt, [(e.supporter, e.supported) for e in scene.support_edges], scores.bodies
         )
         unknown = (
             memory.occupancy.counts(*roi)[0] if roi is not None else memory.occupancy.counts()[0]
@@ -236,6 +241,7 @@ def run_fusion(args: argparse.Namespace, progress=None):
                 pose_error[1],
                 memory.timings_ms.get("registration_ms", 0.0),
                 verdict(memory.last_registration if i > 0 else None),
+                support.f1,
             )
         )
         if progress:
@@ -280,7 +286,8 @@ def _fuse(args: argparse.Namespace) -> int:
         bar = "#" * int(30 * i / n)
         print(
             f"\r[{bar:<30}] view {i}/{n}  InlierIndex {m.inlier_index:.2f}  "
-            f"Overlapping {m.overlapping_index:.2f}  unknown {m.unknown_voxels}",
+            f"Overlapping {m.overlapping_index:.2f}  support F1 {m.support_f1:.2f}  "
+            f"unknown {m.unknown_voxels}",
             end="" if i < n else "\n",
             file=sys.stderr,
             flush=True,

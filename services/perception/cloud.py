@@ -29,6 +29,27 @@ class OrganizedCloud:
     def shape(self) -> tuple[int, int]:
         return self.valid.shape
 
+    @property
+    def size(self) -> int:
+        return self.valid.size
+
+    def labels(self, pixels: np.ndarray) -> tuple[np.ndarray, int]:
+        """The 8-connected components of ``pixels`` (flat grid indices): labels 1 … k, k."""
+        return kernels.grid_labels(pixels, self.shape[1])
+
+    def near(self, pixels: np.ndarray, mask: np.ndarray) -> np.ndarray:
+        """Which of ``pixels`` are within one grid step of a ``mask``-ed one."""
+        return kernels.near(pixels, mask, self.shape[1])
+
+    def viewing_distance(self, pixels: np.ndarray) -> float:
+        """Median distance from the pixels' points to the camera (the noise scale)."""
+        d = self.points.reshape(-1, 3)[pixels] - self.camera_centre
+        return float(np.median(np.linalg.norm(d, axis=1)))
+
+    def viewer(self, pixels: np.ndarray) -> np.ndarray:
+        """Where the pixels were seen from: the camera."""
+        return self.camera_centre
+
 
 def organized_cloud(
     depth: np.ndarray,

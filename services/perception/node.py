@@ -9,6 +9,11 @@ A frame without depth, or larger than ``max_pixels``, is dropped and counted; an
 all-invalid frame gives an observation with no primitives. Observations carry the worker.
 A frame that carries the robot's joint positions has the robot's own body masked out first
 (``self_mask.py``), so the robot never perceives its arms and hands as scene primitives.
+
+World clouds of the camera (``sensors/cloud/<camera>``, CloudFrame: the scene memory's
+registered cloud in ``pc`` / ``pc+sg`` fusion, with ``--camera registered``) are perceived
+the same way, shared and queued with the frames, by the point-set pipeline
+(``Perception.perceive_points``).
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from collections import deque
 
 import numpy as np
 
-from schemas import RgbdFrame
+from schemas import CloudFrame, RgbdFrame
 from schemas.codec import peek
 from services.common.frames import usable_depth_frame
 from services.common.membership import Members
@@ -27,7 +32,12 @@ from services.common.node import Node
 from services.common.realtime import foreground
 from services.common.robots import robot_mjcf
 from services.perception.config import PerceptionSettings
-from services.perception.pipeline import Perception, PerceptionConfig, observation
+from services.perception.pipeline import (
+    Perception,
+    PerceptionConfig,
+    cloud_observation,
+    observation,
+)
 from services.perception.self_mask import RobotBody
 
 log = logging.getLogger("avs.perception")
@@ -49,11 +59,14 @@ class PerceptionNode:
         self.seq = 0
         self.key = node.keys.rgbd(settings.camera)
         self.members = Members(node.session, node.keys.alive("perception"), node.instance)
-        self.pending: deque[RgbdFrame] = deque()
+        self.cloud_key = node.keys.cloud_frame(settings.camera)
+        self.pending: deque[RgbdFrame | CloudFrame] = deque()
         self.ready = threading.Condition()
         self.skipped = 0
         self.body: RobotBody | None = None
         node.subscribe(self.key, RgbdFrame, self.on_arrival, name="on_arrival", accept=self.mine)
+        node.subscribe(self.cloud_key, CloudFrame, self.on_arrival, name="on_cloud",
+                       accept=self.mine)  # fmt: skip
         node._start_thread(self.work, "perception:work")
 
     def mine(self, payload: bytes) -> bool:
@@ -66,7 +79,7 @@ class PerceptionNode:
         self.node.metrics.gauge("frames_of_others", self.skipped)
         return False
 
-    def on_arrival(self, frame: RgbdFrame) -> None:
+    def on_arrival(self, frame: RgbdFrame | CloudFrame) -> None:
         """Queue a frame of this worker's."""
         if not self.members.owns(f"{frame.camera}:{frame.seq}"):
             return
@@ -85,10 +98,12 @@ class PerceptionNode:
                 if not self.pending and not self.ready.wait(0.2):
                     continue
                 frame = self.pending.popleft()
+            is_cloud = isinstance(frame, CloudFrame)
             try:
-                self.on_frame(frame)
+                self.on_cloud(frame) if is_cloud else self.on_frame(frame)
             except Exception as e:  # a bad frame never stops the worker
-                self.node.drop(f"handler_error:{type(e).__name__}", self.key, repr(e))
+                key = self.cloud_key if is_cloud else self.key
+                self.node.drop(f"handler_error:{type(e).__name__}", key, repr(e))
 
     def close(self) -> None:
         self.members.close()
@@ -126,6 +141,17 @@ class PerceptionNode:
         self.out.put(
             observation(result, frame, self.seq, self.node.instance, c.depth_max, c.stride)
         )
+        self._done(result)
+
+    def on_cloud(self, cloud: CloudFrame) -> None:
+        """A world cloud (the registered cloud of the roi): the point-set pipeline."""
+        result = self.perception.perceive_points(
+            cloud.points, cloud.viewpoints, cloud.colours, cloud.T_world_camera[:3, 3]
+        )
+        self.out.put(cloud_observation(result, cloud, self.seq, self.node.instance))
+        self._done(result)
+
+    def _done(self, result) -> None:
         self.seq += 1
         self.node.metrics.gauge("frames_done", self.seq)
         self.node.metrics.gauge("workers", len(self.members.current()))

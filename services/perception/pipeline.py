@@ -15,6 +15,7 @@ from schemas import (
     Affordance,
     BoxModel,
     CameraIntrinsics,
+    CloudFrame,
     CylinderModel,
     Obb,
     PlaneModel,
@@ -28,6 +29,7 @@ from schemas import (
 from services.perception import relations
 from services.perception.affordances import AffordanceOut, Hand, affordances
 from services.perception.cloud import organized_cloud
+from services.perception.pointset import point_set, segment_points
 from services.perception.primitives import (
     Extracted,
     ExtractionConfig,
@@ -37,6 +39,18 @@ from services.perception.primitives import (
 from services.perception.segmentation import segment
 
 MAX_INLIERS = 2000
+
+
+@dataclass
+class PointSetConfig:
+    """Perceiving an unorganized cloud (``perceive_points``): at 1 cm voxels a surface has a
+    quarter of the points the stride-2 grid gives it at 1.5 m, so the least primitive and
+    segment are smaller in points (about the same in area)."""
+
+    radius: float = 0.02  # neighbours within this distance (2 voxels of the memory's cloud)
+    crease_deg: float = 30.0
+    min_segment: int = 15
+    extraction: ExtractionConfig = field(default_factory=lambda: ExtractionConfig(tau_min=20))
 
 
 @dataclass
@@ -50,6 +64,7 @@ class PerceptionConfig:
     extraction: ExtractionConfig = field(default_factory=ExtractionConfig)
     relations: relations.RelationConfig = field(default_factory=relations.RelationConfig)
     hand: Hand = field(default_factory=Hand)
+    points: PointSetConfig = field(default_factory=PointSetConfig)
 
 
 @dataclass
@@ -117,14 +132,49 @@ class Perception:
         lap("cloud")
         labels, n = segment(cloud, min_size=c.min_segment)
         lap("segmentation")
+        return self._scene(cloud, labels, n, c.extraction, T_world_camera[:3, 3], timings, lap,
+                           rng)  # fmt: skip
+
+    def perceive_points(
+        self,
+        points: np.ndarray,
+        viewpoints: np.ndarray,
+        colours: np.ndarray | None = None,
+        camera_centre: np.ndarray | None = None,
+    ) -> Perceived:
+        """The same stages on an unorganized world cloud (``pointset.py``): the registered
+        cloud of many views, which ``pc`` fusion re-extracts the scene from. ``viewpoints``:
+        the optical centre each point was seen from (its normal faces it); ``camera_centre``:
+        the latest camera (affordances are for the robot there)."""
+        c, pc = self.config, self.config.points
+        rng = np.random.default_rng(c.seed)
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+
+        def lap(stage: str) -> None:
+            nonlocal t
+            now = time.perf_counter()
+            timings[stage] = (now - t) * 1e3
+            t = now
+
+        cloud = point_set(points, viewpoints, colours, camera_centre, pc.radius)
+        lap("cloud")
+        labels, n = segment_points(cloud, pc.min_segment, pc.crease_deg)
+        lap("segmentation")
+        return self._scene(cloud, labels, n, pc.extraction, cloud.camera_centre, timings, lap,
+                           rng)  # fmt: skip
+
+    def _scene(self, cloud, labels, n, extraction, eye, timings, lap, rng) -> Perceived:
+        """Algorithm 1 on every segment, then boxes, the graphs and affordances."""
+        c = self.config
         flat = labels.ravel()
         order = np.argsort(flat, kind="stable")
         bounds = np.searchsorted(flat[order], np.arange(n + 1))
         prims: list[Extracted] = []
         for s in range(n):
-            prims += extract_segment(cloud, order[bounds[s] : bounds[s + 1]], s, c.extraction, rng)
+            prims += extract_segment(cloud, order[bounds[s] : bounds[s + 1]], s, extraction, rng)
         lap("primitives")
-        prims = assemble_boxes(prims, c.extraction)
+        prims = assemble_boxes(prims, extraction)
         lap("boxes")
         spatial = relations.spatial_edges(prims, c.relations)
         lap("spatial_graph")
@@ -138,7 +188,7 @@ class Perception:
         unstable = relations.unstable(len(prims), ground, support)
         lap("support_graph")
         resting = {t for _, t, _ in support}
-        affs = affordances(prims, T_world_camera[:3, 3], resting, c.hand)
+        affs = affordances(prims, eye, resting, c.hand)
         lap("affordances")
         timings["total"] = sum(timings.values())
         return Perceived(
@@ -190,7 +240,6 @@ def observation(
     result: Perceived, frame: RgbdFrame, seq: int, worker: str, depth_max: float, stride: int
 ) -> SceneObservation:
     """The SceneObservation message of one perceived frame."""
-    rng = np.random.default_rng(frame.seq)
     # (one contiguous copy of the strided image, its pixels in rows: reshaping the strided
     # view per primitive copied the whole image each time, 4 ms of a 40 ms frame)
     colours = (
@@ -198,15 +247,36 @@ def observation(
         if frame.rgb is not None
         else None
     )
+    return _observation(result, frame, colours, seq, worker, depth_max)
+
+
+def cloud_observation(
+    result: Perceived, cloud: CloudFrame, seq: int, worker: str
+) -> SceneObservation:
+    """The SceneObservation message of a perceived world cloud (``perceive_points``): its
+    pose and intrinsics are those of the view that completed the cloud."""
+    return _observation(result, cloud, cloud.colours, seq, worker, cloud.depth_max or 3.0)
+
+
+def _observation(
+    result: Perceived,
+    source: RgbdFrame | CloudFrame,
+    colours: np.ndarray | None,
+    seq: int,
+    worker: str,
+    depth_max: float,
+) -> SceneObservation:
+    rng = np.random.default_rng(source.seq)
+    frame_seq = source.frame_seq if isinstance(source, CloudFrame) else source.seq
     return SceneObservation(
         seq=seq,
-        stamp=frame.stamp,
-        camera=frame.camera,
-        frame_seq=frame.seq,
-        frame_stamp=frame.stamp,
+        stamp=source.stamp,
+        camera=source.camera,
+        frame_seq=frame_seq,
+        frame_stamp=source.stamp,
         worker=worker,
-        T_world_camera=frame.T_world_camera,
-        intrinsics=frame.intrinsics,
+        T_world_camera=source.T_world_camera,
+        intrinsics=source.intrinsics,
         depth_max=depth_max,
         points=result.points,
         primitives=[to_primitive(i, p, colours, rng) for i, p in enumerate(result.primitives)],

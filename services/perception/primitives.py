@@ -18,6 +18,10 @@ from scipy import ndimage
 from services.perception import kernels, ransac
 from services.perception.cloud import OrganizedCloud
 from services.perception.obb import Box, axis_box, cross, intersect, plane_box
+from services.perception.pointset import PointSet
+
+#: what Algorithm 1 runs on: a depth image's grid, or an unorganized cloud's neighbour graph
+Cloud = OrganizedCloud | PointSet
 
 
 @dataclass
@@ -63,20 +67,20 @@ class Extracted:
     height: float = 0.0  # cylinder
 
 
-def _member(pixels: np.ndarray, of: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """Which of ``pixels`` (flat grid indices) are among ``of``: a mask over the grid, not
-    np.isin's sort (a tenth of the time on a segment's pixels)."""
-    grid = np.zeros(shape[0] * shape[1], bool)
+def _member(pixels: np.ndarray, of: np.ndarray, size: int) -> np.ndarray:
+    """Which of ``pixels`` (flat grid indices) are among ``of``: a mask over the ``size``
+    grid points, not np.isin's sort (a tenth of the time on a segment's pixels)."""
+    grid = np.zeros(size, bool)
     grid[of] = True
     return grid[pixels]
 
 
-def _largest_cluster(pixels: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """The largest 8-connected component (on the grid) of the given pixels: Euclidean
-    clustering where neighbours are pixels."""
+def _largest_cluster(pixels: np.ndarray, cloud: Cloud) -> np.ndarray:
+    """The largest connected component of the given pixels: Euclidean clustering where
+    neighbours are pixels (8-connected on the grid) or the point set's graph neighbours."""
     if len(pixels) == 0:
         return pixels
-    own, n = kernels.grid_labels(pixels, shape[1])
+    own, n = cloud.labels(pixels)
     if n <= 1:
         return pixels
     return pixels[own == np.argmax(np.bincount(own))]
@@ -125,7 +129,7 @@ def _cap(
 
 
 def extract_segment(
-    cloud: OrganizedCloud,
+    cloud: Cloud,
     pixels: np.ndarray,
     segment: int,
     config: ExtractionConfig,
@@ -149,7 +153,7 @@ def extract_segment(
         if len(X) > config.tau_max:
             sample = rng.choice(len(X), config.tau_max, replace=False)
         Xs, Ns = X[sample], N[sample]
-        cam_dist = float(np.median(np.linalg.norm(Xs[:200] - cloud.camera_centre, axis=1)))
+        cam_dist = cloud.viewing_distance(remaining[sample[:200]])
         dist = config.dist_base + config.dist_quad * cam_dist**2
         angle = config.angle_deg + config.angle_per_m * max(0.0, cam_dist - 1.0)
         cos_min = np.cos(np.radians(min(angle, config.angle_max)))
@@ -181,37 +185,37 @@ def extract_segment(
         # membership: the normal-tested inliers, grown by one grid step to the points that fit
         # by distance alone (near silhouettes the normals are smoothed across the edge and
         # the normal test would shave the primitive's border off)
-        keep = best.inliers | (
-            _near(remaining, best.inliers, cloud.shape) & (_distances(best, X) < dist)
-        )
+        keep = best.inliers | (cloud.near(remaining, best.inliers) & (_distances(best, X) < dist))
         if best.kind == "cylinder":
             keep = keep | _cap(best, X, N, best.inliers, dist)
-        cluster = _largest_cluster(remaining[keep], cloud.shape)
+        cluster = _largest_cluster(remaining[keep], cloud)
         if len(cluster) < least:
             continue
         if best.kind == "cylinder":  # the box spans the side only: caps do not move the ends
-            side = _member(cluster, remaining[_distances(best, X) < dist], cloud.shape)
+            side = _member(cluster, remaining[_distances(best, X) < dist], cloud.size)
             prim = _make(
                 best,
                 cluster[side],
                 P[cluster[side]].astype(np.float64),
                 segment,
-                cloud.camera_centre,
+                cloud.viewer(cluster[side]),
             )
             prim.pixels, prim.points = cluster, P[cluster].astype(np.float64)
         else:
-            prim = _make(best, cluster, P[cluster].astype(np.float64), segment, cloud.camera_centre)
+            prim = _make(
+                best, cluster, P[cluster].astype(np.float64), segment, cloud.viewer(cluster)
+            )
         out.append(prim)
-        remaining = remaining[~_member(remaining, cluster, cloud.shape)]
-        parts += [p for p in _components(remaining, cloud.shape) if len(p) >= config.tau_min]
+        remaining = remaining[~_member(remaining, cluster, cloud.size)]
+        parts += [p for p in _components(remaining, cloud) if len(p) >= config.tau_min]
     return out
 
 
-def _components(pixels: np.ndarray, shape: tuple[int, int]) -> list[np.ndarray]:
-    """The 8-connected components of the given grid pixels."""
+def _components(pixels: np.ndarray, cloud: Cloud) -> list[np.ndarray]:
+    """The connected components of the given pixels (8-connected on the grid)."""
     if len(pixels) == 0:
         return []
-    own, n = kernels.grid_labels(pixels, shape[1])
+    own, n = cloud.labels(pixels)
     order = np.argsort(own, kind="stable")
     bounds = np.searchsorted(own[order], np.arange(1, n + 2))
     return [pixels[order[bounds[k] : bounds[k + 1]]] for k in range(n)]

@@ -17,9 +17,13 @@ For a new view's primitives Ψ^{t+1} and the memory Ψ^{1,t}:
    coverage rules, the memory's kind kept;
 3. Ψ^{1,t+1} = surviving memory ∪ surviving new.
 
-Support graphs combine by ``sg``: each view's edges, mapped onto memory ids, count into occ(e);
-``pc`` keeps only the edges of the latest view (the view of the registered cloud); ``pc+sg``
-counts those into occ(e).
+Support graphs combine (Table 3.1) by ``sg``: each view's primitives are fused as above and
+its edges, mapped onto memory ids, count into occ(e). ``pc`` and ``pc+sg`` fuse observations
+of the registered cloud of the whole roi (every view so far merged in the map, which the
+scene memory publishes for perception to re-extract): ``pc`` takes the scene model as
+extracted from it, G_s^t, replacing the memory's primitives and edges (occ(e) = 1); ``pc+sg``
+fuses it into the memory like a view (all of the memory takes part: the cloud saw the whole
+roi) and counts its edges into occ(e).
 """
 
 from __future__ import annotations
@@ -331,11 +335,20 @@ class Fusion:
         grown = np.abs(np.sort(after.extent) - np.sort(before.extent)).max()
         return bool(max(moved, grown) > self.config.changed)
 
-    def update(self, obs: SceneObservation) -> Update:
-        """Fuse one view (Algorithm 2), then combine its support graph."""
+    def update(self, obs: SceneObservation, whole: bool = False) -> Update:
+        """Fuse one view (Algorithm 2), then combine its support graph. ``whole``: the
+        observation is of the registered cloud of the whole roi, not of one camera's view:
+        every memory primitive takes part (no frustum culling), and in ``pc`` mode it replaces
+        the memory (Table 3.1: the graph extracted from the registered cloud is the model)."""
         c = self.config
         result = Update()
-        visible = [m for m in self.prims.values() if in_frustum(m.primitive.obb, obs)]
+        if c.mode == "pc" and whole:
+            result.removed = len(self.prims)
+            self.prims, self.occ = {}, {}
+        if whole:
+            visible = list(self.prims.values())
+        else:
+            visible = [m for m in self.prims.values() if in_frustum(m.primitive.obb, obs)]
         floor = self._floor_height(obs)
         if floor is not None:  # every floor piece takes part, seen now or not
             visible += [

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from schemas import CameraIntrinsics, PointCloud, RgbdFrame, SceneModel, SceneObservation
+from schemas import CloudFrame, PointCloud, RgbdFrame, SceneModel, SceneObservation
 from services.scene_memory.fusion import Fusion, FusionConfig, Update, voxel_keys
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap
 from services.scene_memory.registration import (
@@ -20,8 +20,10 @@ from services.scene_memory.registration import (
 )
 
 MAX_CLOUD = 400_000  # points the registered cloud keeps
-#: the camera name of ``registered_view``'s frames: what is perceived in them is in the map
+#: the camera name of ``registered_cloud``'s clouds: what is perceived in them is in the map
 REGISTERED_CAMERA = "registered"
+#: points of the roi's registered cloud that ``pc`` fusion re-extracts from, at most
+MAX_ROI_CLOUD = 60_000
 
 
 @dataclass
@@ -54,6 +56,9 @@ class SceneMemory:
     #: what frames are registered against (``registration``): built as frames are integrated,
     #: rebuilt from the registered cloud for a snapshot written before it existed
     registration_map: RegistrationMap | None = None
+    #: (n, 3) float32: the optical centre each point of ``cloud`` was seen from (None: a
+    #: snapshot from before they were kept)
+    viewpoints: np.ndarray | None = None
 
     def __init__(self, config: MemoryConfig | None = None) -> None:
         self.config = config or MemoryConfig()
@@ -62,6 +67,7 @@ class SceneMemory:
         self.occupancy = OccupancyMap(np.array(c.bounds_min), np.array(c.bounds_max), c.occupancy)
         self.cloud = np.zeros((0, 3), np.float32)
         self.colours = np.zeros((0, 3), np.uint8)
+        self.viewpoints = np.zeros((0, 3), np.float32)
         self.timings_ms: dict[str, float] = {}
         #: the information gain the last frame realised in the roi, by both of the planner's
         #: measures: "volume" (unknown voxels it made known) and "rays" (Eq. 4.6 on its rays)
@@ -128,12 +134,28 @@ class SceneMemory:
         )
         merged = np.concatenate([self.cloud, pts.astype(np.float32)])
         colours = np.concatenate([self.colours, rgb])
+        seen_from = np.concatenate(
+            [self._viewpoints(), np.broadcast_to(T[:3, 3].astype(np.float32), pts.shape)]
+        )
         _, first = np.unique(voxel_keys(merged, self.config.cloud_voxel), return_index=True)
         first = np.sort(first)[-MAX_CLOUD:]
         self.cloud, self.colours = merged[first], colours[first]
+        self.viewpoints = seen_from[first]
         self.timings_ms["integrate_ms"] = (t1 - t0) * 1e3
         self.timings_ms["cloud_ms"] = (time.perf_counter() - t1) * 1e3
         return n
+
+    def _viewpoints(self) -> np.ndarray:
+        """Where each point of the cloud was seen from; for a cloud restored from a snapshot
+        that did not keep it, the last camera (or above the cloud)."""
+        v = self.viewpoints
+        if v is not None and len(v) == len(self.cloud):
+            return v
+        if len(self.cloud) == 0:
+            return np.zeros((0, 3), np.float32)
+        T = self.last_keyframe
+        eye = T[:3, 3] if T is not None else self.cloud.mean(0) + np.array([0, 0, 1.0])
+        return np.broadcast_to(np.asarray(eye, np.float32), self.cloud.shape).copy()
 
     def registered_pose(self, frame: RgbdFrame, cam: np.ndarray) -> tuple[np.ndarray, bool]:
         """The frame's camera pose in the map: its odometry pose corrected by the last
@@ -164,12 +186,13 @@ class SceneMemory:
 
     def fuse(self, obs: SceneObservation) -> Update:
         """Fuse an observation (Algorithm 2), moved into the registered map by the odometry's
-        correction when registration has found one (not one perceived in the registered cloud's
-        own view, which is in the map already)."""
+        correction when registration has found one. One perceived in the registered cloud
+        (``registered_cloud``) is in the map already, and saw the whole roi at once."""
         t0 = time.perf_counter()
-        if self.T_world_odom is not None and obs.camera != REGISTERED_CAMERA:
+        whole = obs.camera == REGISTERED_CAMERA
+        if self.T_world_odom is not None and not whole:
             obs = moved(obs, self.T_world_odom)
-        update = self.fusion.update(obs)
+        update = self.fusion.update(obs, whole=whole)
         self.timings_ms["fuse_ms"] = (time.perf_counter() - t0) * 1e3
         return update
 
@@ -187,39 +210,45 @@ class SceneMemory:
         )
 
 
-def registered_view(
-    memory: SceneMemory, frame: RgbdFrame, width: int = 160, height: int = 120
-) -> RgbdFrame:
-    """The registered cloud seen from ``frame``'s camera: a z-buffered depth image (one pixel
-    per cloud voxel at about 1.5 m) — what ``pc`` re-extracts primitives from."""
-    K, T = frame.intrinsics, frame.T_world_camera
-    s = width / K.width
-    Kr = CameraIntrinsics(
-        width=width,
-        height=height,
-        fx=K.fx * s,
-        fy=K.fy * s,
-        cx=(K.cx + 0.5) * s - 0.5,
-        cy=(K.cy + 0.5) * s - 0.5,
-    )
-    cam = (memory.cloud.astype(np.float64) - T[:3, 3]) @ T[:3, :3]
-    z = cam[:, 2]
-    ok = z > 0.1
-    u = np.round(Kr.fx * cam[ok, 0] / z[ok] + Kr.cx).astype(int)
-    v = np.round(Kr.fy * cam[ok, 1] / z[ok] + Kr.cy).astype(int)
-    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    depth = np.full(height * width, np.inf)
-    np.minimum.at(depth, v[inside] * width + u[inside], z[ok][inside])
-    depth[~np.isfinite(depth)] = 0
-    rgb = np.zeros((height, width, 3), np.uint8)
-    return RgbdFrame(
+def registered_cloud(
+    memory: SceneMemory,
+    frame: RgbdFrame,
+    box: tuple | None = None,
+    voxel: float = 0.01,
+    margin: float = 0.03,
+    cap: int = MAX_ROI_CLOUD,
+) -> CloudFrame:
+    """The registered cloud of ``box`` (default: the roi; grown by ``margin``; without either,
+    all of it), every view so far merged in the map, voxel-downsampled to ``voxel`` (at most
+    ``cap`` points, evenly spread): what ``pc`` fusion re-extracts the scene from (thesis 3.3.1,
+    Table 3.1: P^{1,t} = P_1 ∪ … ∪ P_t). Its pose is ``frame``'s camera in the map (odometry
+    corrected by registration), each point carries the camera centre it was seen from."""
+    points, seen_from, colours = memory.cloud, memory._viewpoints(), memory.colours
+    roi = box if box is not None else memory.config.roi
+    if roi is not None and len(points):
+        lo, hi = np.asarray(roi[0]) - margin, np.asarray(roi[1]) + margin
+        inside = np.all((points >= lo) & (points <= hi), axis=1)
+        points, seen_from, colours = points[inside], seen_from[inside], colours[inside]
+    if voxel > memory.config.cloud_voxel and len(points):
+        _, first = np.unique(voxel_keys(points, voxel), return_index=True)
+        first = np.sort(first)
+        points, seen_from, colours = points[first], seen_from[first], colours[first]
+    if len(points) > cap:
+        keep = np.linspace(0, len(points) - 1, cap).astype(int)
+        points, seen_from, colours = points[keep], seen_from[keep], colours[keep]
+    T = np.asarray(frame.T_world_camera, float)
+    if memory.T_world_odom is not None:
+        T = memory.T_world_odom @ T
+    return CloudFrame(
         seq=frame.seq,
         stamp=frame.stamp,
         camera=REGISTERED_CAMERA,
-        intrinsics=Kr,
-        rgb=rgb,
-        depth=depth.reshape(height, width).astype(np.float32),
+        frame_seq=frame.seq,
         T_world_camera=T,
-        depth_min=frame.depth_min,
+        intrinsics=frame.intrinsics,
+        points=np.ascontiguousarray(points, np.float32),
+        viewpoints=np.ascontiguousarray(seen_from, np.float32),
+        colours=np.ascontiguousarray(colours, np.uint8),
+        voxel_size=max(voxel, memory.config.cloud_voxel),
         depth_max=frame.depth_max,
     )

@@ -1,9 +1,11 @@
 """The scene memory's node: observations and depth frames in (each journaled before it is
 applied), the fused scene out on every change, and its state on queryables.
 
-In ``pc`` and ``pc+sg`` fusion it also publishes the registered cloud as seen from the last
-frame's camera, on ``sensors/rgbd/registered``: a perception worker run with
-``--camera registered`` turns it into the observations that are fused.
+In ``pc`` and ``pc+sg`` fusion it also publishes, after each depth frame, the registered
+cloud of the roi (every view so far merged in the map, voxel-downsampled, each point with the
+camera centre it was seen from) on ``sensors/cloud/registered``: a perception worker run with
+``--camera registered`` re-extracts the primitives and support graph from that whole cloud
+(thesis 3.3.1), and only those observations are fused.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ from services.scene_memory.memory import (
     REGISTERED_CAMERA,
     MemoryConfig,
     SceneMemory,
-    registered_view,
+    registered_cloud,
 )
 from services.scene_memory.occupancy import OccupancyConfig
 from services.scene_memory.persistence import Store
@@ -84,7 +86,7 @@ class SceneMemoryNode:
         self.out_scene = node.publisher(k.scene())
         self.out_correction = node.publisher(k.pose_correction())
         self.out_registered = (
-            node.publisher(k.rgbd(REGISTERED_CAMERA)) if settings.fusion != "sg" else None
+            node.publisher(k.cloud_frame(REGISTERED_CAMERA)) if settings.fusion != "sg" else None
         )
         self.obs_camera = REGISTERED_CAMERA if settings.fusion != "sg" else settings.camera
         # the work runs on the inputs' own threads, never in Zenoh's callbacks: observations
@@ -163,8 +165,8 @@ class SceneMemoryNode:
             self.node.metrics.gauge("frames_skipped", self.memory.frames_skipped)
         if self.out_registered is not None:
             with self.lock:
-                view = registered_view(self.memory, frame)
-            self.out_registered.put(view)
+                cloud = registered_cloud(self.memory, frame)
+            self.out_registered.put(cloud)
 
     def on_observation(self, obs: SceneObservation) -> None:
         if obs.camera != self.obs_camera:
