@@ -80,6 +80,19 @@ class Perceived:
     grid_shape: tuple[int, int] = (0, 0)
 
 
+class Laps:
+    """Stage timings (ms): ``lap(stage)`` closes the stage that began at the previous lap."""
+
+    def __init__(self) -> None:
+        self.timings: dict[str, float] = {}
+        self.t = time.perf_counter()
+
+    def __call__(self, stage: str) -> None:
+        now = time.perf_counter()
+        self.timings[stage] = (now - self.t) * 1e3
+        self.t = now
+
+
 class Perception:
     """The pipeline with its configuration; ``perceive`` is a pure function of the frame."""
 
@@ -107,15 +120,7 @@ class Perception:
         if mask is not None and mask.any():
             depth = np.where(mask, np.float32(0), np.asarray(depth, np.float32))
         rng = np.random.default_rng(c.seed)
-        timings: dict[str, float] = {}
-        t = time.perf_counter()
-
-        def lap(stage: str) -> None:
-            nonlocal t
-            now = time.perf_counter()
-            timings[stage] = (now - t) * 1e3
-            t = now
-
+        lap = Laps()
         cloud = organized_cloud(
             depth,
             rgb,
@@ -132,8 +137,7 @@ class Perception:
         lap("cloud")
         labels, n = segment(cloud, min_size=c.min_segment)
         lap("segmentation")
-        return self._scene(cloud, labels, n, c.extraction, T_world_camera[:3, 3], timings, lap,
-                           rng)  # fmt: skip
+        return self._scene(cloud, labels, n, c.extraction, T_world_camera[:3, 3], lap, rng)
 
     def perceive_points(
         self,
@@ -148,23 +152,14 @@ class Perception:
         the latest camera (affordances are for the robot there)."""
         c, pc = self.config, self.config.points
         rng = np.random.default_rng(c.seed)
-        timings: dict[str, float] = {}
-        t = time.perf_counter()
-
-        def lap(stage: str) -> None:
-            nonlocal t
-            now = time.perf_counter()
-            timings[stage] = (now - t) * 1e3
-            t = now
-
+        lap = Laps()
         cloud = point_set(points, viewpoints, colours, camera_centre, pc.radius)
         lap("cloud")
         labels, n = segment_points(cloud, pc.min_segment, pc.crease_deg)
         lap("segmentation")
-        return self._scene(cloud, labels, n, pc.extraction, cloud.camera_centre, timings, lap,
-                           rng)  # fmt: skip
+        return self._scene(cloud, labels, n, pc.extraction, cloud.camera_centre, lap, rng)
 
-    def _scene(self, cloud, labels, n, extraction, eye, timings, lap, rng) -> Perceived:
+    def _scene(self, cloud, labels, n, extraction, eye, lap: Laps, rng) -> Perceived:
         """Algorithm 1 on every segment, then boxes, the graphs and affordances."""
         c = self.config
         flat = labels.ravel()
@@ -190,6 +185,7 @@ class Perception:
         resting = {t for _, t, _ in support}
         affs = affordances(prims, eye, resting, c.hand)
         lap("affordances")
+        timings = lap.timings
         timings["total"] = sum(timings.values())
         return Perceived(
             prims,
