@@ -63,9 +63,10 @@ class GraspExperimentConfig:
     arm: str = "left"
     target: str = "cup"  # the body to grasp (green)
     speed: float = 0.15  # m/s, the platform's
-    #: the body's sway while the platform drives: hip yaw q̇ = A·cos(2πft), (A deg/s, f Hz);
-    #: a real platform rocks the upper body it carries (0: the sim's perfectly smooth drive)
-    sway: tuple[float, float] = (6.0, 0.5)
+    #: a sway of the body while the platform drives: hip yaw q̇ = A·cos(2πft), (A deg/s, f Hz);
+    #: off by default (the sim's drive is smooth: the route's turns and the translation are
+    #: what moves the gaze)
+    sway: tuple[float, float] = (0.0, 0.5)
     #: the planned trajectory: waypoints (x, y, yaw) from the scene's robot_start, then a goal
     route: tuple[tuple[float, float, float], ...] = ((2.0, -0.2, 0.2), (2.45, 0.0, 0.0))
     goal: tuple[float, float, float] = (4.6, 0.0, 0.0)

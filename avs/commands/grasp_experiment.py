@@ -26,8 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compare", action="store_true", help="run off and on, print Table 5.1")
     p.add_argument("--speed", type=float, default=0.15, help="platform speed, m/s")
     p.add_argument(
-        "--sway", type=float, default=6.0,
-        help="the body's sway while driving: hip yaw rate amplitude, deg/s at 0.5 Hz (0: none)",
+        "--sway", type=float, default=0.0,
+        help="a sway of the body while driving: hip yaw rate amplitude, deg/s at 0.5 Hz",
     )  # fmt: skip
     p.add_argument(
         "--noise", choices=["on", "off"], default="on",
@@ -75,8 +75,8 @@ def table(off: list[dict], on: list[dict]) -> str:
             return "never"
         return f"{r['acuity_reached_s'] - r['acuity_raised_s']:.1f}"
 
-    lines.append(f"{'acuity met after raise (s)':<30}{' '.join(delay(r) for r in off):>14}"
-                 f"{' '.join(delay(r) for r in on):>12}")  # fmt: skip
+    lines.append(f"acuity met after it was raised, s: unstabilised {', '.join(map(delay, off))}"
+                 f"; stabilised {', '.join(map(delay, on))}")  # fmt: skip
     return "\n".join(lines)
 
 
