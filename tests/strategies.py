@@ -153,6 +153,11 @@ def draw_value(draw, annotation: Any, metadata: list[Any], dims: dict[str, int])
 def _fix_rgbd(draw, values: dict, dims: dict) -> None:
     if values.get("rgb") is None and values.get("depth") is None:
         values["depth"] = _array(draw, Array("float32", ("h", "w")), [], dims)
+    if values.get("joint_positions") is not None:  # a name per position
+        n = len(values["joint_positions"])
+        values["joint_names"] = [draw(st.text(min_size=1, max_size=8)) for _ in range(n)]
+    else:
+        values["joint_names"] = []
     h, w = dims["h"], dims["w"]
     values["intrinsics"] = values["intrinsics"].model_copy(update={"width": w, "height": h})
 
