@@ -76,6 +76,8 @@ class EpisodeConfig:
     #: the robot's sensor models in the sim (noise, bias, latency, odometry drift)
     noise: bool = True
     registration: bool = True  # the scene memory registers each frame before fusing it
+    #: every service's output in ``out/logs/<service>.log`` (False: this process's console)
+    logs: bool = True
 
 
 @dataclass
@@ -346,6 +348,7 @@ class Episode:
             services, endpoint, c.robot,
             env=self._env(data_dir, facts),
             restart=False, launch=c.launch, scale=c.scale,
+            log_dir=c.out / "logs" if c.logs else None,
         )  # fmt: skip
         result = EpisodeResult(
             c.scene, c.strategy, c.sampling, c.fusion, c.seed,

@@ -111,6 +111,7 @@ class Supervisor:
         backoff: tuple[float, float] = (BACKOFF_MIN_S, BACKOFF_MAX_S),
         realtime: bool = False,
         peers: bool = False,
+        log_dir: Path | None = None,
     ) -> None:
         """``scale``: instances per service (default one each; only scalable services take
         more). ``launch``: a command prefix per service, e.g. ``ip netns exec HOST`` to run it
@@ -123,7 +124,10 @@ class Supervisor:
         between two services then crosses one link instead of two, and the router carries only
         what outside clients ask for (on this 2-core machine the router's share fell from about
         a fifth of a core to 4 %). Only where every service runs on the router's host and no
-        access control is wanted: peer links bypass the router's ACL (compose keeps clients)."""
+        access control is wanted: peer links bypass the router's ACL (compose keeps clients).
+        ``log_dir``: each instance's output (stdout and stderr) goes to ``<service>.log`` there
+        (``<instance>.log`` when a service runs several; begun anew at start, appended to across
+        restarts) instead of this process's console."""
         self.backoff = backoff
         self.realtime = realtime
         self.peers = peers
@@ -134,6 +138,7 @@ class Supervisor:
         self.robot = robot
         self.extra_env = env or {}
         self.restart = restart
+        self.log_dir = log_dir
         scale = scale or {}
         for name, n in scale.items():
             info = next((s for s in services if s.name == name), None)
@@ -188,11 +193,31 @@ class Supervisor:
                     child.alive = child.active or child.standing_by
             self._changed.notify_all()
 
+    def log_file(self, child: Child) -> Path | None:
+        """Where ``child``'s output goes (None: this process's console)."""
+        if self.log_dir is None:
+            return None
+        siblings = sum(1 for c in self.children if c.info.name == child.info.name)
+        return self.log_dir / f"{child.info.name if siblings == 1 else child.instance}.log"
+
     def _spawn(self, child: Child) -> None:
         prefix = self.launch.get(child.info.name, [])
-        child.process = subprocess.Popen(
-            [*prefix, sys.executable, *child.info.argv()], env=self.child_env(child)
-        )
+        path = self.log_file(child)
+        out = None
+        if path is not None:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            mode = "wb" if child.process is None else "ab"  # a restart continues its log
+            out = open(path, mode)  # noqa: SIM115 - the child holds it; ours closes below
+        try:
+            child.process = subprocess.Popen(
+                [*prefix, sys.executable, *child.info.argv()],
+                env=self.child_env(child),
+                stdout=out,
+                stderr=subprocess.STDOUT if out is not None else None,
+            )
+        finally:
+            if out is not None:
+                out.close()
         child.started_at = time.monotonic()
         child.last_heard, child.next_start, child.state = None, None, "starting"
         log.info("started %s (pid %d)", child.instance, child.process.pid)

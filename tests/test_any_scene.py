@@ -87,7 +87,9 @@ def test_perceive_a_user_scene(tmp_path, start, yaw):
 def _episode(out: Path, *args: str) -> tuple[dict, subprocess.CompletedProcess]:
     run = avs("explore", *args, "--out", str(out), timeout=600)
     assert run.returncode == 0, run.stderr[-3000:]
-    assert "Traceback" not in run.stderr and "nanobind: leaked" not in run.stderr
+    logs = "".join(f.read_text() for f in sorted((out / "logs").glob("*.log")))
+    for text in (run.stderr, logs):  # the console, and the services' logs
+        assert "Traceback" not in text and "nanobind: leaked" not in text
     return json.loads((out / "metrics.json").read_text()), run
 
 

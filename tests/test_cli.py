@@ -195,23 +195,6 @@ def test_up_refuses_a_busy_port_with_one_line(router):
     assert "Traceback" not in out.stderr
 
 
-def test_run_is_an_exploration_episode(tmp_path):
-    """The main job, shortened to two views: every service a process, a summary, the files."""
-    out = subprocess.run(
-        [*AVS, "run", "--views", "2", "--out", str(tmp_path)],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert out.returncode == 0, out.stderr[-3000:]
-    assert "tabletop_occluded: 2 views, terminated by max_views" in out.stdout
-    metrics = json.loads((tmp_path / "metrics.json").read_text())
-    assert [v["view"] for v in metrics["views"]] == [0, 1]
-    assert metrics["views"][1]["support_f1"] >= 0.9
-    for name in ("f1.png", "unknown_voxels.png", "path_cost.png", "views_map.png", "report.html"):
-        assert (tmp_path / name).stat().st_size > 1000, name
-
-
 def test_schema_export(tmp_path):
     out = subprocess.run(
         [*AVS, "schema", "export", str(tmp_path)], capture_output=True, text=True, timeout=60

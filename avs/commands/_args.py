@@ -49,3 +49,14 @@ def fusion_list(text: str) -> list[str]:
     if len(set(names)) < len(names):
         raise argparse.ArgumentTypeError(f"a fusion mode given twice in {text!r}")
     return names
+
+
+def add_console_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--verbose``: the long commands' services' log lines live on the console too (they are
+    always in ``DIR/logs/``)."""
+    parser.add_argument(
+        "--verbose",
+        "-v",
+        action="store_true",
+        help="show the services' log lines live (always written to OUT/logs/<service>.log)",
+    )

@@ -16,7 +16,14 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
-from avs.commands._args import FUSIONS, fusion_list, positive_float, positive_int
+from avs.commands._args import (
+    FUSIONS,
+    add_console_arguments,
+    fusion_list,
+    positive_float,
+    positive_int,
+)
+from avs.console import log_to
 
 
 def _episode_arguments(p: argparse.ArgumentParser, fusions: bool = False) -> None:
@@ -54,6 +61,7 @@ def _episode_arguments(p: argparse.ArgumentParser, fusions: bool = False) -> Non
         "default: as --noise)",
     )  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="output directory")
+    add_console_arguments(p)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -88,32 +96,43 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.set_defaults(func=_compare)
 
 
-def progress_bar(label: str, lines: bool = False):
-    """Progress on stderr: a bar redrawn in place, or (``lines``, episodes running side by
-    side) one line per view."""
-
-    start, end = ("", "\n") if lines else ("\r", "")
-
-    def show(i: int, n: int, r) -> None:
-        bar = "#" * int(30 * i / n)
-        print(
-            f"{start}{label} [{bar:<30}] view {i}/{n}  F1 {r.support_f1:.2f}  unknown "
-            f"{r.unknown_voxels}  cost {r.accumulated_path_cost:.1f} s",
-            end=end,
-            file=sys.stderr,
-            flush=True,
-        )
-
-    return show
+def _info(r) -> str:
+    return (f"F1 {r.support_f1:.2f}  unknown {r.unknown_voxels}  "
+            f"cost {r.accumulated_path_cost:.1f} s")  # fmt: skip
 
 
-def run_episode(config, label: str, lines: bool = False) -> dict:
+def run_episode(config, label: str, lines: bool = False, display=None) -> dict:
+    """One episode; its progress as a task of ``display`` (a started rich Progress), or
+    (``lines``, episodes running side by side in other processes) one line per view."""
     from avs.explore import Episode
 
-    result = Episode(config, progress_bar(label, lines)).run().to_json()
-    detail = f": {result['termination_detail']}" if result.get("termination_detail") else ""
-    print(f"  terminated by {result['terminated_by']}{detail}", file=sys.stderr, flush=True)
+    if lines:
+
+        def show(i: int, n: int, r) -> None:
+            print(f"{label} view {i}/{n}  {_info(r)}", file=sys.stderr, flush=True)
+
+        result = Episode(config, show).run().to_json()
+        print(f"{label} terminated by {result['terminated_by']}", file=sys.stderr, flush=True)
+        return result
+    task = display.add_task(label, total=config.views, info="starting the services")
+
+    def advance(i: int, n: int, r) -> None:
+        display.update(task, completed=i, total=n, info=_info(r))
+
+    result = Episode(config, advance).run().to_json()
+    done = len(result["views"])
+    display.update(task, completed=done, total=done or config.views,
+                   info=f"terminated by {result['terminated_by']}")  # fmt: skip
     return result
+
+
+def episode(config, label: str, verbose: bool = False) -> dict:
+    """One episode in this process with the console of the long commands: a progress bar,
+    the services' logs in ``config.out/logs`` (live on the console with ``verbose``)."""
+    from avs.console import following, progress
+
+    with following(config.out / "logs", verbose), progress() as display:
+        return run_episode(config, label, display=display)
 
 
 def _config(args: argparse.Namespace, **kw):
@@ -141,16 +160,17 @@ def write_outputs(
 def _explore(args: argparse.Namespace) -> int:
     from services.sim.scene import SceneError
 
-    args.out.mkdir(parents=True, exist_ok=True)
+    log_to(args.out / "logs", "explore")
     try:
-        result = run_episode(_config(args, strategy=args.strategy, seed=args.seed), args.strategy)
+        config = _config(args, strategy=args.strategy, seed=args.seed)
+        result = episode(config, args.strategy, args.verbose)
     except SceneError as e:
         print(f"avs explore: {e}", file=sys.stderr)
         return 2
     (args.out / "metrics.json").write_text(json.dumps(result, indent=2))
     page = write_outputs(args.out, {args.strategy: [result]}, f"{args.scene}: {args.strategy}")
     summary(result)
-    print(f"wrote {args.out / 'metrics.json'}, plots and {page}")
+    print(f"wrote {args.out / 'metrics.json'}, plots and {page}; logs in {args.out / 'logs'}")
     return 0
 
 
@@ -169,7 +189,7 @@ def summary(result: dict) -> None:
 
 
 def _compare(args: argparse.Namespace) -> int:
-    args.out.mkdir(parents=True, exist_ok=True)
+    log_to(args.out / "logs", "compare")
     fusions = args.fusion
     base = _config(args, fusion=fusions[0])
     strategies = [s.strip() for s in args.strategies.split(",") if s.strip()]
@@ -190,7 +210,11 @@ def _compare(args: argparse.Namespace) -> int:
         for seed in range(args.seeds)
     ]  # fmt: skip
     if args.jobs == 1:
-        results = [run_episode(c, f"{k} seed {c.seed}") for k, c in episodes]
+        from avs.console import following, progress
+
+        with following(args.out, args.verbose), progress() as display:
+            results = [run_episode(c, f"{k} seed {c.seed}", display=display)
+                       for k, c in episodes]  # fmt: skip
     else:  # fresh interpreters (spawn): no Zenoh session or thread crosses a fork
         spawn = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(args.jobs, mp_context=spawn) as pool:

@@ -278,26 +278,23 @@ def plot(metrics: list[ViewMetrics], path: Path, title: str) -> None:
 
 
 def _fuse(args: argparse.Namespace) -> int:
+    from avs.console import log_to, progress
     from services.sim.scene import SceneError
 
-    args.out.mkdir(parents=True, exist_ok=True)
+    log_to(args.out / "logs", "fuse")
+    with progress() as display:
+        task = display.add_task(f"{args.scene} {args.path}", total=args.views, info="")
 
-    def progress(i: int, n: int, m: ViewMetrics) -> None:
-        bar = "#" * int(30 * i / n)
-        print(
-            f"\r[{bar:<30}] view {i}/{n}  InlierIndex {m.inlier_index:.2f}  "
-            f"Overlapping {m.overlapping_index:.2f}  support F1 {m.support_f1:.2f}  "
-            f"unknown {m.unknown_voxels}",
-            end="" if i < n else "\n",
-            file=sys.stderr,
-            flush=True,
-        )
+        def advance(i: int, n: int, m: ViewMetrics) -> None:
+            display.update(task, completed=i, total=n, info=(
+                f"InlierIndex {m.inlier_index:.2f}  Overlapping {m.overlapping_index:.2f}  "
+                f"support F1 {m.support_f1:.2f}  unknown {m.unknown_voxels}"))  # fmt: skip
 
-    try:
-        metrics, _, _ = run_fusion(args, progress)
-    except SceneError as e:
-        print(f"avs fuse: {e}", file=sys.stderr)
-        return 2
+        try:
+            metrics, _, _ = run_fusion(args, advance)
+        except SceneError as e:
+            print(f"avs fuse: {e}", file=sys.stderr)
+            return 2
     out = {
         "scene": args.scene,
         "path": args.path,

@@ -1,7 +1,8 @@
 """``avs run``: the main job — one whole exploration episode on ``tabletop_occluded`` with the
 defaults (utility strategy, equidistant sampling, sg fusion, at most 10 views), every service
-a local process on a loopback Zenoh router; it prints a short summary and writes the metrics,
-plots and report.html under ``--out`` (default runs/explore)."""
+a local process on a loopback Zenoh router. It prints a progress bar and a short summary and
+writes the metrics, plots and report.html under ``--out`` (default runs/explore), every
+service's log in ``OUT/logs/<service>.log`` (``--verbose``: live on the console too)."""
 
 from __future__ import annotations
 
@@ -10,8 +11,9 @@ import json
 import sys
 from pathlib import Path
 
-from avs.commands._args import positive_int
-from avs.commands.explore import run_episode, summary, write_outputs
+from avs.commands._args import add_console_arguments, positive_int
+from avs.commands.explore import episode, summary, write_outputs
+from avs.console import log_to
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,23 +32,24 @@ def register(sub: argparse._SubParsersAction) -> None:
         "memory registers the views) or the simulator's truth",
     )  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("runs/explore"))
+    add_console_arguments(parser)
     parser.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
     from avs.explore import EpisodeConfig
 
-    args.out.mkdir(parents=True, exist_ok=True)
+    log_to(args.out / "logs", "run")
     on = args.noise == "on"
     config = EpisodeConfig(scene=args.scene, views=args.views, seed=args.seed, out=args.out,
                            noise=on, registration=on)  # fmt: skip
     try:
-        result = run_episode(config, "episode")
+        result = episode(config, "episode", args.verbose)
     except (RuntimeError, TimeoutError) as e:
         print(f"avs run: {e}", file=sys.stderr)
         return 1
     (args.out / "metrics.json").write_text(json.dumps(result, indent=2))
     page = write_outputs(args.out, {"utility": [result]}, f"{args.scene}: utility")
     summary(result)
-    print(f"metrics, plots and {page} in {args.out}")
+    print(f"metrics, plots and {page} in {args.out}; logs in {args.out / 'logs'}")
     return 0

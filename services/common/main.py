@@ -18,7 +18,7 @@ def run_node(settings: ServiceSettings, build: Callable[[Node], Any]) -> int:
     service = type(settings).SERVICE
     setup_logging(service, settings.instance, settings.log_level, settings.log_format)
     log = logging.getLogger(f"avs.{service}")
-    log.info("settings", extra={"settings": settings.model_dump(mode="json")})
+    log.debug("settings", extra={"settings": settings.model_dump(mode="json")})
     with Node(service, settings, announce=False) as node:
         node.install_signal_handlers()
         worker = build(node)

@@ -22,7 +22,7 @@ def test_kitchen_orbit_of_20_views(tmp_path):
         cwd=ROOT, capture_output=True, text=True, timeout=600,
     )  # fmt: skip
     assert run.returncode == 0, run.stderr[-2000:]
-    assert "view 20/20" in run.stderr  # progress shown
+    assert " 20/20 " in run.stderr  # progress shown
     views = json.loads((out / "metrics.json").read_text())["views"]
     assert len(views) == 20
     keys = {"view", "inlier_index", "overlapping_index", "added", "modified", "removed",
