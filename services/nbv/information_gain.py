@@ -148,8 +148,10 @@ class SkipMap:
         box: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> SkipMap:
         """``box``: the region whose unknown voxels count (default: the whole map)."""
-        origin = np.asarray(origin, np.float64)
-        states = np.ascontiguousarray(states, dtype=np.uint8)
+        # one array type whatever the caller holds (numba compiles a kernel anew for a read-only
+        # array, e.g. one decoded from a message, and the warm-up must have compiled this one)
+        origin = np.array(origin, np.float64)
+        states = np.require(states, np.uint8, ["C_CONTIGUOUS", "WRITEABLE"])
         shape = np.array(states.shape, np.int64)
         if box is None:
             box = (origin, origin + shape * voxel)

@@ -66,6 +66,7 @@ class NbvNode:
             settings.camera,
             settings.robot,
         )
+        self.planner.warm_up()  # the kernels now, not in the first step of an episode
         self.lock = threading.Lock()
         self.base: BasePose | None = None
         self.T_world_odom: np.ndarray | None = None  # memory/pose_correction

@@ -154,10 +154,18 @@ class PathPlanner:
         self.time_limit = time_limit
         self.free = floor.clearance >= self.need
         self.labels, _ = ndimage.label(self.free)
-        self._si = None
+        self._si = self._space = self._motions = None
 
     def valid(self, xy: np.ndarray) -> np.ndarray:
         return self.floor.lookup(xy) >= self.need
+
+    def close(self) -> None:
+        """Release the OMPL objects, users before what they use (the motion validator and
+        the space information before the state space): left to the interpreter's exit, they
+        go in no particular order and nanobind reports each as leaked. ``plan`` remakes them."""
+        self._motions = None
+        self._si = None
+        self._space = None
 
     def _segment_free(self, a: np.ndarray, b: np.ndarray) -> bool:
         """Every floor cell the footprint's centre crosses from a to b is free (exact)."""
@@ -235,14 +243,17 @@ class PathPlanner:
         planner = og.RRTConnect(si)
         planner.setProblemDefinition(pdef)
         planner.setup()
-        status = planner.solve(self.time_limit)
-        if str(status) != "Exact solution":
-            return None
-        path = pdef.getSolutionPath()
-        simplifier = og.PathSimplifier(si)
-        simplifier.reduceVertices(path)
-        simplifier.ropeShortcutPath(path)
-        return np.array([[q.getX(), q.getY(), q.getYaw()] for q in path.getStates()])
+        waypoints = None
+        if str(planner.solve(self.time_limit)) == "Exact solution":
+            path = pdef.getSolutionPath()
+            simplifier = og.PathSimplifier(si)
+            simplifier.reduceVertices(path)
+            simplifier.ropeShortcutPath(path)
+            waypoints = np.array([[q.getX(), q.getY(), q.getYaw()] for q in path.getStates()])
+            del simplifier, path
+        planner.clear()
+        del planner, pdef, s, g  # the planner before what it plans in (see close)
+        return waypoints
 
     def cost(self, start, goal) -> tuple[float, np.ndarray | None]:
         """(c(v), the path); (∞, None) when unreachable (Eq. 4.9)."""

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -223,6 +223,31 @@ class Planner:
         )  # fmt: skip
         return gains
 
+    def warm_up(self) -> None:
+        """Plan one step on a small made-up map: loads the compiled kernels (IG, visibility,
+        floor map, segment checks), or compiles them on a machine's first run (seconds), before
+        the node announces itself rather than in the middle of an episode's first step. The
+        map has no obstacle between the views and its centre, so no path needs OMPL (whose
+        random generator would move), and the planner's own state is put back."""
+        voxel, n = 0.05, np.array([80, 80, 40])
+        centre = np.array([0.0, 0.0, 0.9])
+        origin = centre - n * voxel / 2
+        origin[2] = 0.0
+        states = np.full(n, ig.FREE, np.uint8)  # the dtype OccupancySlice carries
+        k = np.floor((centre - origin) / voxel).astype(int)
+        states[k[0] - 3 : k[0] + 3, k[1] - 3 : k[1] + 3, : k[2] - 2] = ig.OCCUPIED  # a table
+        states[k[0] - 3 : k[0] + 3, k[1] - 3 : k[1] + 3, k[2] - 2 : k[2] + 4] = ig.UNKNOWN
+        states.setflags(write=False)  # as decoded from a message: numba types it apart
+        config, rng, first_gain = self.config, self.rng.bit_generator.state, self.first_gain
+        fan_out, self.coarse_gains = self.coarse_gains, None
+        self.config = replace(config, k=24, samples=20)  # a few views do (k=12 reaches none)
+        try:
+            self.plan(centre[None], None, states, origin, voxel, (-1.5, 0.0, 0.0),
+                      np.zeros((0, 3)), 1)  # fmt: skip
+        finally:
+            self.config, self.rng.bit_generator.state = config, rng
+            self.first_gain, self.coarse_gains = first_gain, fan_out
+
     def plan(
         self,
         centres: np.ndarray,
@@ -259,8 +284,11 @@ class Planner:
         planner = PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
         cost = np.full(len(gain), math.inf)
         paths: list[np.ndarray | None] = [None] * len(gain)
-        for i, b in enumerate(cands.base):
-            cost[i], paths[i] = planner.cost(np.array(current), b)
+        try:
+            for i, b in enumerate(cands.base):
+                cost[i], paths[i] = planner.cost(np.array(current), b)
+        finally:
+            planner.close()
         times["path_cost_ms"] = (time.perf_counter() - t2) * 1e3
         u = utility(c.strategy, gain, cost, cands.saliency, c.lam, self.rng)
         reachable = np.isfinite(cost)

@@ -74,8 +74,12 @@ def organized_cloud(
     R = T_world_camera[:3, :3].astype(np.float32)
     t = T_world_camera[:3, 3].astype(np.float32)
     points = kernels.back_project(z, valid, fx, fy, cx, cy, stride, R, t)
+    # a writable C-ordered copy: the kernels then see one array type whether the image came
+    # decoded from a message (read-only) or not, and the warm-up compiled that type
     colours = (
-        np.asarray(rgb)[::stride, ::stride] if rgb is not None else np.zeros((h, w, 3), np.uint8)
+        np.array(np.asarray(rgb)[::stride, ::stride], np.uint8, order="C")
+        if rgb is not None
+        else np.zeros((h, w, 3), np.uint8)
     )
     spacing = (stride * z / np.float32(fx)).astype(np.float32)
     centre = T_world_camera[:3, 3].astype(np.float32)

@@ -29,6 +29,7 @@ from schemas import (
 from services.perception import relations
 from services.perception.affordances import AffordanceOut, Hand, affordances
 from services.perception.cloud import organized_cloud
+from services.perception.obb import Box, intersect
 from services.perception.pointset import point_set, segment_points
 from services.perception.primitives import (
     Extracted,
@@ -104,8 +105,13 @@ class Perception:
         real frame arrives."""
         z = np.full((48, 64), 1.0, np.float32)
         z[10:30, 20:40] = 0.8
+        rgb = np.full((48, 64, 3), 200, np.uint8)
+        rgb[10:30, 20:40] = (200, 40, 40)  # a red box before a grey wall: colour edges
         K = CameraIntrinsics.from_fov(64, 48, 45.0)
         self.perceive(z, None, K, np.eye(4))
+        self.perceive(z, rgb, K, np.eye(4))
+        table = Box(np.zeros(3), np.eye(3), np.array([1.0, 1.0, 0.1]))  # two primitives' boxes:
+        intersect(table, Box(np.array([0, 0, 0.1]), np.eye(3), np.full(3, 0.1)), 0.01)
 
     def perceive(
         self,

@@ -34,6 +34,7 @@ from services.common.frames import usable_depth_frame
 from services.common.node import Node
 from services.common.realtime import BACKGROUND
 from services.common.standby import wait_for_turn
+from services.scene_memory import occupancy
 from services.scene_memory.config import SceneMemorySettings
 from services.scene_memory.fusion import FusionConfig
 from services.scene_memory.memory import (
@@ -77,6 +78,7 @@ class SceneMemoryNode:
                                 lambda: node.stopping)  # fmt: skip
         if standby is None:
             raise SystemExit(0)  # stopped while standing by
+        occupancy.warm_up()  # the kernels before the first frame, not with it
         if settings.registration:
             warm_up()
         self.store = Store(settings.data_dir)

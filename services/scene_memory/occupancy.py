@@ -387,7 +387,8 @@ class OccupancyMap:
         number of voxels updated."""
         points = np.asarray(points, np.float64).reshape(-1, 3)
         points = points[np.all(np.isfinite(points), axis=1)]
-        origin = np.asarray(origin, np.float64)
+        # a copy: numba compiles its kernels anew for a read-only array (a decoded pose's)
+        origin = np.array(origin, np.float64)
         max_range = self.config.max_range if max_range is None else max_range
         if len(self._rays) < len(points):
             self._rays = np.empty((len(points), 3), np.float64)
@@ -444,7 +445,7 @@ class OccupancyMap:
         max_range = self.config.max_range if max_range is None else max_range
         ends = depth_points(depth, intrinsics, T_world_camera, depth_min, max_range, every)
         index = np.array(self._index_box(*box), np.int64)
-        origin = np.asarray(T_world_camera[:3, 3], np.float64)
+        origin = np.array(T_world_camera[:3, 3], np.float64)  # writable, as in integrate
         return float(every * _unknown_on_rays(self.L, self.lo, self.voxel, origin, ends, index))
 
     def _index_box(self, box_min, box_max) -> tuple[int, int, int, int, int, int]:
@@ -491,3 +492,17 @@ class OccupancyMap:
             return None
         v = self.L[tuple(k)]
         return None if v == UNKNOWN else 1 / (1 + math.exp(-v / SCALE))
+
+
+def warm_up() -> None:
+    """Integrate a small made-up scan once and ask the queries' kernels: loads the compiled
+    kernels, or compiles them on a machine's first run (seconds), before the first real frame
+    rather than with it."""
+    m = OccupancyMap(np.zeros(3), np.ones(3), OccupancyConfig(voxel=0.05, max_range=2.0))
+    depth = np.full((24, 32), 0.8, np.float32)
+    T = np.eye(4)
+    T[:3, 3] = (0.5, 0.5, 0.05)
+    m.unknown_on_rays(depth, (30.0, 30.0, 15.5, 11.5), T, (m.lo, m.hi), every=4)
+    m.integrate_depth(depth, 30.0, 30.0, 15.5, 11.5, T)
+    m.counts()
+    m.states()
