@@ -68,6 +68,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--strategy", choices=["utility", "occupancy", "random", "saliency"], default="utility"
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--viewer", action="store_true",
+        help="watch the episode live in rerun ('avs view'): the native viewer where there is "
+        "a display, else the web viewer (its address is printed)",
+    )  # fmt: skip
+    p.add_argument(
+        "--save-view", type=Path, metavar="FILE",
+        help="record what 'avs view' shows of the episode to FILE (.rrd), headless",
+    )  # fmt: skip
     p.set_defaults(func=_explore)
     c = sub.add_parser(
         "compare",
@@ -138,12 +147,26 @@ def write_outputs(
     return report.html_report(title, images, tables, out)
 
 
+def viewer_flags(live: bool, save: Path | None) -> tuple[str, ...] | None:
+    """The ``avs view`` flags of ``--viewer`` / ``--save-view`` (None: no viewer)."""
+    if not live and save is None:
+        return None
+    from avs.commands.view import has_display
+
+    flags: tuple[str, ...] = ("--save", str(save)) if save is not None else ()
+    if live:
+        flags += ("--spawn",) if has_display() else ("--web", "--web-port", "0")
+    return flags
+
+
 def _explore(args: argparse.Namespace) -> int:
     from services.sim.scene import SceneError
 
     args.out.mkdir(parents=True, exist_ok=True)
     try:
-        result = run_episode(_config(args, strategy=args.strategy, seed=args.seed), args.strategy)
+        config = _config(args, strategy=args.strategy, seed=args.seed,
+                         viewer=viewer_flags(args.viewer, args.save_view))  # fmt: skip
+        result = run_episode(config, args.strategy)
     except SceneError as e:
         print(f"avs explore: {e}", file=sys.stderr)
         return 2
