@@ -329,3 +329,21 @@ def test_view_web_is_loaded_by_chromium_and_records_the_ego_sphere(router, clien
     assert points.shape == (40_000 // 20, 3) and len(colours) == len(points)  # every 20th
     radius = np.linalg.norm(points - [0, 0, 1.6], axis=1)
     assert np.allclose(radius, 0.35, atol=1e-3)  # unit directions on the drawn sphere
+
+
+def test_no_flag_is_taken_for_an_abbreviation_and_view_needs_somewhere_to_show(tmp_path):
+    from avs.cli import build_parser
+
+    parser = build_parser()
+    args = parser.parse_args(["explore", "--out", "x", "--views", "3", "--save-view", "r.rrd"])
+    assert (args.views, args.save_view, args.viewer) == (3, Path("r.rrd"), False)
+    with pytest.raises(SystemExit) as exit_:
+        parser.parse_args(["explore", "--out", "x", "--view", "3"])  # not --views, not --viewer
+    assert exit_.value.code == 2
+    env = {k: v for k, v in view_env().items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    out = subprocess.run(
+        [sys.executable, "-m", "avs.cli", "view", "--connect", "tcp/127.0.0.1:9"],
+        env=env, cwd=ROOT, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert out.returncode != 0 and "--web" in out.stderr and "--save" in out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1

@@ -21,17 +21,25 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import quote
 
 import numpy as np
 
 from avs.commands._args import positive_float, positive_int
 from avs.commands._transport import add_transport_arguments, connect, settings_from
-from schemas import BoxQuery, OccupancySlice, OccupancyStats
+from schemas import BoxQuery, OccupancySlice, OccupancyStats, SceneModel
 from schemas.base import Message
 from schemas.codec import CodecError, decode
 from services.common.node import Node, RemoteError
+
+if TYPE_CHECKING:  # rerun is imported when the command runs, not for 'avs --help'
+    from collections.abc import Callable
+
+    import rerun as rr
+    import zenoh
+
+    from avs.viewer import SceneLogger
 
 log = logging.getLogger("avs.view")
 
@@ -105,12 +113,12 @@ class Viewer:
     decoding there); one worker thread decodes them in arrival order, turns them into entities
     (``avs.viewer.SceneLogger``) and logs them; a second thread asks for the map."""
 
-    def __init__(self, node: Node, recording: Any, logger: Any, map_period: float) -> None:
-        from avs.viewer import SceneLogger
-
+    def __init__(
+        self, node: Node, recording: rr.RecordingStream, logger: SceneLogger, map_period: float
+    ) -> None:
         self.node = node
         self.recording = recording
-        self.logger: SceneLogger = logger
+        self.logger = logger
         self.map_period = map_period
         self.cond = threading.Condition()
         #: concrete key → (arrival time, payload bytes or a decoded message)
@@ -139,8 +147,8 @@ class Viewer:
             thread.start()
             self._threads.append(thread)
 
-    def _on_sample(self, interval: float):
-        def on_sample(sample: Any) -> None:  # Zenoh's thread: keep the bytes, nothing more
+    def _on_sample(self, interval: float) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:  # Zenoh's thread: keep the bytes, nothing more
             key = str(sample.key_expr)
             self.node.metrics.count_in(key)
             self.put(key, sample.payload.to_bytes(), interval)
@@ -197,7 +205,7 @@ class Viewer:
             self.node.drop(f"draw_error:{type(e).__name__}", key, f"drawing it raised {e!r}")
             return
         self.logged += 1
-        if type(message).__name__ == "SceneModel":
+        if isinstance(message, SceneModel):
             self.map_wanted.set()  # a new view was fused: the map changed too
 
     def refresh_map(self) -> None:
@@ -223,8 +231,12 @@ class Viewer:
         while not self.stopping:
             self.map_wanted.wait(self.map_period)
             self.map_wanted.clear()
-            if not self.stopping:
+            if self.stopping:
+                return
+            try:
                 self.refresh_map()
+            except Exception as e:  # the map is shown when it can be; the viewer goes on
+                self.node.drop(f"map_error:{type(e).__name__}", "memory/occupancy", repr(e))
 
     def stop(self) -> None:
         """Stop listening, ask for the map once more, log everything still waiting."""
@@ -244,7 +256,7 @@ class Viewer:
         self.recording.flush()
 
 
-def open_recording(args: argparse.Namespace) -> tuple[Any, list[str]]:
+def open_recording(args: argparse.Namespace) -> tuple[rr.RecordingStream, list[str]]:
     """The rerun recording with its sinks (file, web, native viewer) and what to tell the
     user about them; SystemExit when there is nowhere to show it."""
     import rerun as rr
@@ -270,7 +282,9 @@ def open_recording(args: argparse.Namespace) -> tuple[Any, list[str]]:
                 "avs view: no display (DISPLAY / WAYLAND_DISPLAY unset): use --web to serve "
                 "the web viewer or --save FILE.rrd to record"
             )
-        rr.spawn(port=grpc_port, connect=False)
+        beside = Path(sys.executable).with_name("rerun")  # the venv's, on PATH or not
+        rr.spawn(port=grpc_port, connect=False,
+                 executable_path=str(beside) if beside.exists() else None)  # fmt: skip
         sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{grpc_port}/proxy"))
         notes.append(f"native viewer on port {grpc_port}")
     recording.set_sinks(*sinks)
