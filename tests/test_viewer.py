@@ -193,16 +193,19 @@ def view_env() -> dict[str, str]:
 
 @pytest.mark.timeout(300)
 def test_explore_save_view_records_every_entity_with_its_shape(tmp_path):
-    out, rrd = tmp_path / "episode", tmp_path / "run.rrd"
+    out, rrd = tmp_path / "runs" / "explore", tmp_path / "run.rrd"  # explore's default --out
     t0 = time.monotonic()
     done = subprocess.run(
         [sys.executable, "-m", "avs.cli", "--log-level", "WARNING", "explore",
-         "--scene", "tabletop_occluded", "--views", "2", "--out", str(out),
-         "--save-view", str(rrd)],
-        env=view_env(), cwd=ROOT, capture_output=True, text=True, timeout=280,
+         "--scene", "tabletop_occluded", "--save-view", "run.rrd", "--views", "2"],
+        env=view_env(), cwd=tmp_path, capture_output=True, text=True, timeout=280,
     )  # fmt: skip
     assert done.returncode == 0, done.stderr[-3000:]
     print(f"episode with the viewer: {time.monotonic() - t0:.1f} s, {rrd.stat().st_size} B")
+    rerun_cli = Path(sys.executable).with_name("rerun")
+    verified = subprocess.run([str(rerun_cli), "rrd", "verify", str(rrd)], capture_output=True,
+                              text=True, timeout=60)  # fmt: skip
+    assert verified.returncode == 0, verified.stderr
     result = json.loads((out / "metrics.json").read_text())
     rows = read_recording(rrd)
 

@@ -19,7 +19,9 @@ from pathlib import Path
 from avs.commands._args import FUSIONS, fusion_list, positive_float, positive_int
 
 
-def _episode_arguments(p: argparse.ArgumentParser, fusions: bool = False) -> None:
+def _episode_arguments(
+    p: argparse.ArgumentParser, fusions: bool = False, out: Path | None = None
+) -> None:
     p.add_argument("--scene", default="tabletop_occluded", help="scene name or MJCF file")
     p.add_argument("--robot", default="armar6")
     p.add_argument(
@@ -53,7 +55,10 @@ def _episode_arguments(p: argparse.ArgumentParser, fusions: bool = False) -> Non
         help="the scene memory registers each frame against the map first (thesis A.5; "
         "default: as --noise)",
     )  # fmt: skip
-    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument(
+        "--out", type=Path, default=out, required=out is None,
+        help="output directory" + (f" (default {out})" if out else ""),
+    )  # fmt: skip
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -63,7 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    _episode_arguments(p)
+    _episode_arguments(p, out=Path("runs/explore"))
     p.add_argument(
         "--strategy", choices=["utility", "occupancy", "random", "saliency"], default="utility"
     )
