@@ -20,6 +20,7 @@ from avs.commands import (
     sim,
     status,
     up,
+    view,
 )
 from avs.commands._args import OneLineParser
 from services.common.log import setup_logging
@@ -37,6 +38,7 @@ COMMANDS = (
     grasp_experiment,
     echo,
     record,
+    view,
     schema,
 )
 

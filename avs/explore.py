@@ -17,7 +17,10 @@ from __future__ import annotations
 import json
 import logging
 import shutil
+import signal
 import socket
+import subprocess
+import sys
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -78,6 +81,9 @@ class EpisodeConfig:
     registration: bool = True  # the scene memory registers each frame before fusing it
     #: every service's output in ``out/logs/<service>.log`` (False: this process's console)
     logs: bool = True
+    #: ``avs view`` flags (``--save FILE``, ``--web`` …) to watch the episode with; None: no
+    #: viewer
+    viewer: tuple[str, ...] | None = None
 
 
 @dataclass
@@ -212,6 +218,42 @@ class Latest:
                     raise TimeoutError(f"timed out waiting for {what}")
                 self.cond.wait(left)
             return self.value
+
+
+class ViewerProcess:
+    """``avs view`` watching the episode from a process of its own, like any outside tool:
+    started (and waited for: subscribed) before the first view, stopped (it logs what waits
+    and the final map, then writes its recording) before the services."""
+
+    def __init__(
+        self, session: zenoh.Session, endpoint: str, robot: str, flags: tuple[str, ...],
+        timeout: float,
+    ) -> None:  # fmt: skip
+        instance = f"episode-{_free_port()}"
+        command = [sys.executable, "-m", "avs.cli", "--log-level", "WARNING", "view",
+                   "--connect", endpoint, "--robot", robot, "--instance", instance,
+                   "--grpc-port", "0", *flags]  # fmt: skip
+        self.process: subprocess.Popen | None = subprocess.Popen(command)
+        alive = Keys(robot).alive("view", instance)
+        deadline = time.monotonic() + timeout
+        while not any(r.ok for r in session.liveliness().get(alive, timeout=1.0)):
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                self.stop()
+                raise RuntimeError(f"the viewer did not start: {' '.join(command)}")
+            time.sleep(0.1)
+
+    def stop(self, timeout: float = 120.0) -> None:
+        p, self.process = self.process, None
+        if p is None:
+            return
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+        try:
+            p.wait(timeout)
+        except subprocess.TimeoutExpired:
+            log.warning("the viewer did not stop within %.0f s: killed", timeout)
+            p.kill()
+            p.wait()
 
 
 class Episode:
@@ -357,6 +399,7 @@ class Episode:
         )  # fmt: skip
         self.supervisor = supervisor
         supervisor.start()
+        viewer = None
         try:
             if not supervisor.wait_ready(c.ready_timeout):
                 raise RuntimeError(f"services not alive: {supervisor.report()}")
@@ -365,8 +408,14 @@ class Episode:
             conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
             conf.insert_json5("scouting/multicast/enabled", "false")
             with zenoh.open(conf) as session:
+                if c.viewer is not None:
+                    viewer = ViewerProcess(session, endpoint, c.robot, c.viewer, c.ready_timeout)
                 self._loop(session, result, roi_lo, roi_hi)
+                if viewer is not None:  # while the services still answer its map query
+                    viewer.stop()
         finally:
+            if viewer is not None:
+                viewer.stop()
             supervisor.stop()
         return result
 

@@ -7,7 +7,13 @@ import argparse
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """``prog: message (--help for usage)`` on stderr and exit 2, not the usage block."""
+    """``prog: message (--help for usage)`` on stderr and exit 2, not the usage block. No
+    prefix abbreviations (``allow_abbrev=False``, also for the subcommands' parsers): a flag
+    added later must not change what an abbreviation meant (``--view`` for ``--views``)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        kwargs.setdefault("allow_abbrev", False)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str):  # type: ignore[override]
         self.exit(2, f"{self.prog}: {message} (--help for usage)\n")

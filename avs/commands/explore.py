@@ -26,7 +26,9 @@ from avs.commands._args import (
 from avs.console import log_to
 
 
-def _episode_arguments(p: argparse.ArgumentParser, fusions: bool = False) -> None:
+def _episode_arguments(
+    p: argparse.ArgumentParser, fusions: bool = False, out: Path | None = None
+) -> None:
     p.add_argument("--scene", default="tabletop_occluded", help="scene name or MJCF file")
     p.add_argument("--robot", default="armar6")
     p.add_argument(
@@ -60,7 +62,10 @@ def _episode_arguments(p: argparse.ArgumentParser, fusions: bool = False) -> Non
         help="the scene memory registers each frame against the map first (thesis A.5; "
         "default: as --noise)",
     )  # fmt: skip
-    p.add_argument("--out", type=Path, required=True, help="output directory")
+    p.add_argument(
+        "--out", type=Path, default=out, required=out is None,
+        help="output directory" + (f" (default {out})" if out else ""),
+    )  # fmt: skip
     add_console_arguments(p)
 
 
@@ -71,11 +76,20 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    _episode_arguments(p)
+    _episode_arguments(p, out=Path("runs/explore"))
     p.add_argument(
         "--strategy", choices=["utility", "occupancy", "random", "saliency"], default="utility"
     )
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--viewer", action="store_true",
+        help="watch the episode live in rerun ('avs view'): the native viewer where there is "
+        "a display, else the web viewer (its address is printed)",
+    )  # fmt: skip
+    p.add_argument(
+        "--save-view", type=Path, metavar="FILE",
+        help="record what 'avs view' shows of the episode to FILE (.rrd), headless",
+    )  # fmt: skip
     p.set_defaults(func=_explore)
     c = sub.add_parser(
         "compare",
@@ -157,12 +171,25 @@ def write_outputs(
     return report.html_report(title, images, tables, out)
 
 
+def viewer_flags(live: bool, save: Path | None) -> tuple[str, ...] | None:
+    """The ``avs view`` flags of ``--viewer`` / ``--save-view`` (None: no viewer)."""
+    if not live and save is None:
+        return None
+    from avs.commands.view import has_display
+
+    flags: tuple[str, ...] = ("--save", str(save)) if save is not None else ()
+    if live:
+        flags += ("--spawn",) if has_display() else ("--web", "--web-port", "0")
+    return flags
+
+
 def _explore(args: argparse.Namespace) -> int:
     from services.sim.scene import SceneError
 
     log_to(args.out / "logs", "explore")
     try:
-        config = _config(args, strategy=args.strategy, seed=args.seed)
+        config = _config(args, strategy=args.strategy, seed=args.seed,
+                         viewer=viewer_flags(args.viewer, args.save_view))  # fmt: skip
         result = episode(config, args.strategy, args.verbose)
     except SceneError as e:
         print(f"avs explore: {e}", file=sys.stderr)
