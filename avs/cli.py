@@ -14,6 +14,7 @@ from avs.commands import (
     grasp_experiment,
     perceive,
     record,
+    replay_bag,
     run,
     scene,
     schema,
@@ -37,6 +38,7 @@ COMMANDS = (
     grasp_experiment,
     echo,
     record,
+    replay_bag,
     schema,
 )
 
