@@ -138,19 +138,20 @@ class TransformTree:
 
     def chain(self, frame: str, target: str | None = None) -> list[str]:
         """The frames from ``frame`` up to ``target`` (default: the root), both included."""
-        frame = frame_name(frame)
-        if frame not in self.frames:
-            raise TfError(
-                f"frame {frame!r} is not in the bag's tf tree "
-                f"(frames: {', '.join(sorted(self.frames)) or 'none'})"
-            )
+        frame, target = frame_name(frame), frame_name(target) if target else None
+        for name in (frame, target):
+            if name is not None and name not in self.frames:
+                raise TfError(
+                    f"frame {name!r} is not in the bag's tf tree "
+                    f"(frames: {', '.join(sorted(self.frames)) or 'none'})"
+                )
         chain = [frame]
         while chain[-1] != target and chain[-1] in self.edges:
             parent = self.edges[chain[-1]].parent
             if parent in chain:
                 raise TfError(f"the tf tree has a cycle through {parent!r}")
             chain.append(parent)
-        if target is not None and chain[-1] != frame_name(target):
+        if target is not None and chain[-1] != target:
             raise TfError(
                 f"frame {target!r} is not above {frame!r} in the tf tree "
                 f"(its chain: {' → '.join(reversed(chain))})"
@@ -163,7 +164,7 @@ class TransformTree:
     def lookup(self, frame: str, t: float, target: str | None = None) -> np.ndarray:
         """T_target_frame at time ``t`` (s): the pose of ``frame`` in ``target`` (default: the
         root of its tree)."""
-        chain = self.chain(frame, frame_name(target) if target else None)
+        chain = self.chain(frame, target)
         T = np.eye(4)
         for child in reversed(chain[:-1]):
             try:
