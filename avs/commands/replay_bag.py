@@ -37,6 +37,16 @@ def _non_negative(text: str) -> float:
     return value
 
 
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be ≥ 0, got {value}")
+    return value
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "replay-bag",
@@ -66,7 +76,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--pose",
         type=float,
         nargs=6,
-        default=[0.0] * 6,
         metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"),
         help="fixed pose without --tf: the camera body frame (x forward, y left, z up) in the "
         "world, metres and degrees, pitch > 0 looking down (default: all 0)",
@@ -79,20 +88,27 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--rate",
         type=_non_negative,
         default=1.0,
+        metavar="F",
         help="speed factor on the bag's timing (default 1; 0: as fast as possible)",
     )
-    play.add_argument("--start", type=_non_negative, default=0.0, help="skip the first S s")
-    play.add_argument("--limit", type=int, default=0, help="stop after N frames (0: all)")
+    play.add_argument(
+        "--start", type=_non_negative, default=0.0, metavar="S", help="skip the bag's first S s"
+    )
+    play.add_argument(
+        "--limit", type=_count, default=0, metavar="N", help="stop after N frames (0: all)"
+    )
     play.add_argument(
         "--max-dt",
         type=_non_negative,
         default=0.02,
+        metavar="S",
         help="largest stamp difference of a colour and a depth image to pair, s (default 0.02)",
     )
     play.add_argument(
         "--depth-scale",
         type=_non_negative,
         default=None,
+        metavar="M",
         help="metres per unit of 16UC1 depth (default 0.001: millimetres)",
     )
     play.add_argument(
@@ -107,6 +123,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--wait",
         type=_non_negative,
         default=10.0,
+        metavar="S",
         help="wait up to S s for a subscriber before the first frame (default 10)",
     )
     add_transport_arguments(parser)
@@ -114,7 +131,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def config_from(args: argparse.Namespace) -> BagReplayConfig:
-    x, y, z, roll, pitch, yaw = args.pose
+    x, y, z, roll, pitch, yaw = args.pose or [0.0] * 6
     return BagReplayConfig(
         rgb=args.rgb,
         depth=args.depth,
@@ -130,13 +147,15 @@ def config_from(args: argparse.Namespace) -> BagReplayConfig:
         depth_min=args.depth_range[0],
         depth_max=args.depth_range[1],
         start=args.start,
-        limit=max(0, args.limit),
+        limit=args.limit,
     )
 
 
 def _replay(args: argparse.Namespace) -> int:
     if args.world_frame and not args.tf:
         raise SystemExit("avs replay-bag: --world-frame needs --tf")
+    if args.pose and args.tf:
+        raise SystemExit("avs replay-bag: --pose is the pose without --tf; give one of them")
     config = config_from(args)
     settings = settings_from(args)
     try:

@@ -18,6 +18,7 @@ import zenoh
 from pydantic import BaseModel
 
 from avs.cli import build_parser
+from avs.commands.replay_bag import config_from
 from schemas import Keys, RgbdFrame, SceneObservation, decode, encode
 from tests.conftest import (
     ROOT,
@@ -162,3 +163,18 @@ def test_the_command_refuses_a_bad_bag_in_one_line(tmp_path):
         assert str(stop.value.code).startswith("avs replay-bag: ") and message in str(
             stop.value.code
         )
+
+
+def test_the_command_turns_its_flags_into_the_replay_config():
+    topics = ["--rgb", RGB, "--depth", DEPTH, "--camera-info", INFO]
+    args = build_parser().parse_args(["replay-bag", "x.bag", *topics, "--pose", "1", "2", "1.2",
+                                      "0", "30", "90", "--limit", "5", "--depth-range", "0.5",
+                                      "4", "--camera", "desk"])  # fmt: skip
+    config = config_from(args)
+    assert (config.rgb, config.depth, config.camera_info) == (RGB, DEPTH, INFO)
+    assert (config.tf, config.limit, config.camera, config.max_dt) == (False, 5, "desk", 0.02)
+    assert (config.depth_min, config.depth_max, config.depth_scale) == (0.5, 4.0, None)
+    # body x forward along world +y, 30° down: the optical axis
+    np.testing.assert_allclose(config.T_world_camera[:3, 2], [0, np.cos(np.pi / 6), -0.5],
+                               atol=1e-12)  # fmt: skip
+    np.testing.assert_allclose(config.T_world_camera[:3, 3], [1, 2, 1.2])
