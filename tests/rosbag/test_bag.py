@@ -3,6 +3,8 @@ RgbdFrames they were written from (no Zenoh); and the errors a bad bag or topic 
 
 from __future__ import annotations
 
+import sqlite3
+
 import numpy as np
 import pytest
 
@@ -99,3 +101,14 @@ def test_bad_bags_and_topics_are_named(tmp_path, frames):
     tf_bag = _bag(tmp_path / "tf", frames, 2)
     with pytest.raises(BagError, match="'map' is not in the bag's tf tree"):
         _read(tf_bag, tf=True, world_frame="map")
+
+
+def test_a_ros2_bag_without_message_definitions_reads_with_humbles(tmp_path, frames):
+    """rosbag2 before Iron stored no message definitions (rosbags then needs a typestore)."""
+    path = _bag(tmp_path, frames, 2, "16UC1")
+    with sqlite3.connect(next(path.glob("*.db3"))) as db:
+        db.execute("DELETE FROM message_definitions")
+    got, _ = _read(path, tf=True)
+    assert len(got) == 3
+    np.testing.assert_array_equal(got[2].depth, as_stored(frames[2], "16UC1").depth)
+    np.testing.assert_allclose(got[2].T_world_camera, frames[2].T_world_camera, atol=1e-12)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter, deque
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -148,9 +148,12 @@ class BagFrames:
 
     def __enter__(self) -> BagFrames:
         from rosbags.highlevel import AnyReader, AnyReaderError
+        from rosbags.typesys import Stores, get_typestore
 
+        # ROS 2 bags before Iron carry no message definitions: Humble's are the fallback
+        fallback = get_typestore(Stores.ROS2_HUMBLE)
         try:
-            self._reader = AnyReader([self.path])
+            self._reader = AnyReader([self.path], default_typestore=fallback)
             self._reader.open()
         except (AnyReaderError, OSError) as e:
             raise BagError(f"bag {self.path}: cannot be read ({e})") from None
@@ -229,10 +232,6 @@ class BagFrames:
         """Depth images in the bag: the most frames a replay can give."""
         return self._reader.topics[self.config.depth].msgcount
 
-    @property
-    def duration(self) -> float:
-        return self._reader.duration * 1e-9
-
     def pose_at(self, stamp: float) -> np.ndarray:
         if self.tree is None:
             return self.config.T_world_camera
@@ -261,27 +260,24 @@ class BagFrames:
                             "are, unrectified", coefficients)  # fmt: skip
         return self.intrinsics
 
-    def _pixels(self, topic: str, msg: Any) -> np.ndarray:
+    @staticmethod
+    def _image(flag: str, topic: str, msg: Any, convert: Callable[[np.ndarray, str], np.ndarray]):
         try:
-            return image_array(msg.encoding, int(msg.height), int(msg.width), int(msg.step),
-                               msg.data, bool(msg.is_bigendian))  # fmt: skip
+            pixels = image_array(msg.encoding, int(msg.height), int(msg.width), int(msg.step),
+                                 msg.data, bool(msg.is_bigendian))  # fmt: skip
+            return convert(pixels, msg.encoding)
         except ConversionError as e:
-            raise BagError(f"{topic}: {e}") from None
+            raise BagError(f"{flag} topic {topic}: {e}") from None
 
     def frame(
         self, seq: int, stamp: float, depth_msg: Any, rgb_msg: Any, T_world_camera: np.ndarray
     ) -> RgbdFrame:
         """The RgbdFrame of one pair of images at ``stamp`` (the depth image's)."""
         c = self.config
-        try:
-            depth = depth_from_image(self._pixels(c.depth, depth_msg), depth_msg.encoding,
-                                     c.depth_scale)  # fmt: skip
-        except ConversionError as e:
-            raise BagError(f"--depth topic {c.depth}: {e}") from None
-        try:
-            rgb = rgb_from_image(self._pixels(c.rgb, rgb_msg), rgb_msg.encoding)
-        except ConversionError as e:
-            raise BagError(f"--rgb topic {c.rgb}: {e}") from None
+        depth = self._image("--depth", c.depth, depth_msg,
+                            lambda pixels, encoding: depth_from_image(pixels, encoding,
+                                                                      c.depth_scale))  # fmt: skip
+        rgb = self._image("--rgb", c.rgb, rgb_msg, rgb_from_image)
         h, w = depth.shape
         if rgb.shape[:2] != (h, w):
             raise BagError(
