@@ -105,6 +105,7 @@ def _tree() -> TransformTree:
 def test_tf_interpolates_each_edge_and_composes_the_chain():
     tree = _tree()
     assert tree.chain("camera") == ["camera", "base", "world"] and tree.root("camera") == "world"
+    assert tree.roots == {"world"}
     T = tree.lookup("/camera", 10.5)
     c, s = math.cos(math.pi / 4), math.sin(math.pi / 4)
     np.testing.assert_allclose(T[:3, :3], [[c, -s, 0], [s, c, 0], [0, 0, 1]], atol=1e-12)

@@ -224,6 +224,10 @@ class BagFrames:
             raise BagError(f"--tf: {e}") from None
         self.tree, self.world_frame = tree, chain[-1]
         log.info("camera pose from tf: %s", " → ".join(reversed(chain)))
+        roots = sorted(tree.roots)
+        if len(roots) > 1 and not self.config.world_frame:
+            log.warning("the bag's tf is %d separate trees (roots: %s): the camera's world is "
+                        "%s", len(roots), ", ".join(roots), chain[-1])  # fmt: skip
 
     # -- frames --------------------------------------------------------------------------------
 

@@ -136,6 +136,11 @@ class TransformTree:
     def frames(self) -> set[str]:
         return set(self.edges) | {e.parent for e in self.edges.values()}
 
+    @property
+    def roots(self) -> set[str]:
+        """The frames without a parent: one per separate tree."""
+        return {e.parent for e in self.edges.values()} - set(self.edges)
+
     def chain(self, frame: str, target: str | None = None) -> list[str]:
         """The frames from ``frame`` up to ``target`` (default: the root), both included."""
         frame, target = frame_name(frame), frame_name(target) if target else None
