@@ -14,6 +14,7 @@ from avs.commands import (
     grasp_experiment,
     perceive,
     record,
+    replay_bag,
     run,
     scene,
     schema,
@@ -39,6 +40,7 @@ COMMANDS = (
     echo,
     record,
     view,
+    replay_bag,
     schema,
 )
 

@@ -1,0 +1,187 @@
+"""Pure conversions from ROS sensor messages to the fields of an RgbdFrame: image buffers to
+arrays, depth to metres, CameraInfo to intrinsics, ROS transforms and poses to 4×4 matrices.
+
+Nothing here imports ROS, rosbags or Zenoh: the arguments are plain values and arrays, so any
+source of ROS-style data (a bag, a live camera driver) can share them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from schemas import CameraIntrinsics
+
+#: ROS image encodings understood: numpy dtype of one channel and the channel count.
+IMAGE_ENCODINGS: dict[str, tuple[str, int]] = {
+    "rgb8": ("u1", 3),
+    "bgr8": ("u1", 3),
+    "rgba8": ("u1", 4),
+    "bgra8": ("u1", 4),
+    "mono8": ("u1", 1),
+    "8UC1": ("u1", 1),
+    "16UC1": ("u2", 1),
+    "mono16": ("u2", 1),
+    "32FC1": ("f4", 1),
+}
+COLOUR_ENCODINGS = ("rgb8", "bgr8", "rgba8", "bgra8", "mono8", "8UC1")
+#: depth encodings (REP 118): 16-bit unsigned in millimetres, 32-bit float in metres
+DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
+
+#: The optical frame (x right, y down, z forward: RgbdFrame's and ROS's ``*_optical_frame``)
+#: in a camera body frame (REP 103: x forward, y left, z up). Columns: the optical axes.
+R_BODY_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+class ConversionError(ValueError):
+    """A message that cannot become part of an RgbdFrame (its encoding, size, calibration)."""
+
+
+def image_array(
+    encoding: str,
+    height: int,
+    width: int,
+    step: int,
+    data: bytes | np.ndarray,
+    bigendian: bool = False,
+) -> np.ndarray:
+    """The pixels of a ROS ``sensor_msgs/Image`` as (h, w) or (h, w, c), native byte order
+    (rows may be padded: ``step`` bytes per row)."""
+    if encoding not in IMAGE_ENCODINGS:
+        raise ConversionError(
+            f"image encoding {encoding!r} is not supported "
+            f"(supported: {', '.join(IMAGE_ENCODINGS)})"
+        )
+    kind, channels = IMAGE_ENCODINGS[encoding]
+    dtype = np.dtype(kind).newbyteorder(">" if bigendian else "<")
+    row = width * channels * dtype.itemsize
+    buffer = np.frombuffer(data, np.uint8) if not isinstance(data, np.ndarray) else data
+    buffer = buffer.reshape(-1).view(np.uint8)
+    if step < row or buffer.size < step * height:
+        raise ConversionError(
+            f"{encoding} image of {width}×{height} needs {row} bytes a row and "
+            f"{row * height} in all; the message has step {step} and {buffer.size} bytes"
+        )
+    rows = buffer[: step * height].reshape(height, step)[:, :row]
+    pixels = np.ascontiguousarray(rows).view(dtype).astype(dtype.newbyteorder("="), copy=False)
+    return pixels.reshape((height, width, channels) if channels > 1 else (height, width))
+
+
+def rgb_from_image(pixels: np.ndarray, encoding: str) -> np.ndarray:
+    """(h, w, 3) uint8 RGB from decoded pixels of a colour or grey encoding."""
+    if encoding not in COLOUR_ENCODINGS:
+        raise ConversionError(
+            f"colour image encoding {encoding!r} is not supported "
+            f"(supported: {', '.join(COLOUR_ENCODINGS)})"
+        )
+    if pixels.ndim == 2:
+        return np.repeat(pixels[:, :, None], 3, axis=2)
+    rgb = pixels[:, :, :3]
+    if encoding.startswith("bgr"):
+        rgb = rgb[:, :, ::-1]
+    return np.ascontiguousarray(rgb, dtype=np.uint8)
+
+
+def depth_to_metres(depth: np.ndarray, scale: float | None = None) -> np.ndarray:
+    """Depth as float32 metres, 0 where there is no return (0, NaN, ±inf, negative).
+
+    Integer depth (16UC1, a RealSense z16 image) is in units of ``scale`` metres (default
+    0.001: millimetres); float depth (32FC1) is in metres unless ``scale`` says otherwise.
+    """
+    depth = np.asarray(depth)
+    if depth.dtype.kind in "ui":
+        unit = np.float32(0.001 if scale is None else scale)
+        return depth.astype(np.float32) * unit
+    if depth.dtype.kind != "f":
+        raise ConversionError(f"depth of dtype {depth.dtype} is neither integer nor float")
+    metres = depth.astype(np.float32, copy=True)
+    if scale is not None and scale != 1.0:
+        metres *= np.float32(scale)
+    metres[~(np.isfinite(metres) & (metres > 0))] = 0.0
+    return metres
+
+
+def depth_from_image(pixels: np.ndarray, encoding: str, scale: float | None = None) -> np.ndarray:
+    """Metres from a decoded depth image of a ROS depth encoding (16UC1 mm, 32FC1 m)."""
+    if encoding not in DEPTH_ENCODINGS:
+        raise ConversionError(
+            f"depth image encoding {encoding!r} is not supported "
+            f"(supported: {', '.join(DEPTH_ENCODINGS)})"
+        )
+    return depth_to_metres(pixels, scale)
+
+
+def intrinsics_from_camera_info(K: Sequence[float], width: int, height: int) -> CameraIntrinsics:
+    """Pinhole intrinsics from a CameraInfo's 3×3 ``K`` (row major) for an image of
+    width × height. Lens distortion is not modelled (see ``has_distortion``)."""
+    k = np.asarray(K, float).reshape(-1)
+    if k.size != 9:
+        raise ConversionError(f"camera_info K has {k.size} values, not 9")
+    fx, fy, cx, cy = k[0], k[4], k[2], k[5]
+    if not (fx > 0 and fy > 0 and np.isfinite(k).all()):
+        raise ConversionError(
+            f"camera_info K has no focal length (fx={fx}, fy={fy}): the camera is not calibrated"
+        )
+    return CameraIntrinsics(width=width, height=height, fx=fx, fy=fy, cx=cx, cy=cy)
+
+
+def has_distortion(D: Sequence[float]) -> bool:
+    """Whether a CameraInfo's distortion coefficients are not all zero (unrectified images)."""
+    return bool(np.any(np.abs(np.asarray(D, float)) > 1e-12))
+
+
+def quaternion_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """Rotation matrix of a ROS quaternion (x, y, z, w; normalised here)."""
+    q = np.array([w, x, y, z], float)
+    n = np.linalg.norm(q)
+    if not n > 0:
+        raise ConversionError("zero quaternion")
+    w, x, y, z = q / n
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def transform_matrix(translation: Sequence[float], rotation_xyzw: Sequence[float]) -> np.ndarray:
+    """4×4 pose of a ROS ``geometry_msgs/Transform`` (translation, quaternion x, y, z, w)."""
+    T = np.eye(4)
+    T[:3, :3] = quaternion_matrix(*rotation_xyzw)
+    T[:3, 3] = translation
+    return T
+
+
+def optical_pose_from_body(T_world_body: np.ndarray) -> np.ndarray:
+    """T_world_camera of the optical frame (x right, y down, z forward) from the pose of a
+    camera body frame (x forward, y left, z up) at the same origin."""
+    T = np.array(T_world_body, float, copy=True)
+    T[:3, :3] = T[:3, :3] @ R_BODY_OPTICAL
+    return T
+
+
+def fixed_camera_pose(
+    x: float, y: float, z: float, roll: float, pitch: float, yaw: float
+) -> np.ndarray:
+    """T_world_camera (optical) of a camera whose body frame (x forward, y left, z up) sits at
+    (x, y, z) m with roll, pitch, yaw in radians (R = Rz(yaw)·Ry(pitch)·Rx(roll); pitch > 0
+    looks down)."""
+    cr, sr, cp, sp, cy, sy = (
+        math.cos(roll),
+        math.sin(roll),
+        math.cos(pitch),
+        math.sin(pitch),
+        math.cos(yaw),
+        math.sin(yaw),
+    )
+    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1.0]])
+    Ry = np.array([[cp, 0, sp], [0, 1.0, 0], [-sp, 0, cp]])
+    Rx = np.array([[1.0, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    T = np.eye(4)
+    T[:3, :3] = Rz @ Ry @ Rx
+    T[:3, 3] = (x, y, z)
+    return optical_pose_from_body(T)
