@@ -82,7 +82,7 @@ class StreamFacts:
     intrinsics: CameraIntrinsics
     distorted: bool
     colour_format: str
-    R_colour_imu: np.ndarray | None  # None: no IMU, or its extrinsics are unknown
+    R_colour_imu: np.ndarray | None  # None: no IMU, or no extrinsics to place it
 
 
 def stream_facts(rs: ModuleType, profile: Any, imu: bool) -> StreamFacts:
@@ -93,11 +93,15 @@ def stream_facts(rs: ModuleType, profile: Any, imu: bool) -> StreamFacts:
     intr = colour.get_intrinsics()
     R = None
     if imu:
-        try:
-            ext = profile.get_stream(rs.stream.accel).get_extrinsics_to(colour)
+        # the IMU's own extrinsics when the device (or recording) has them; else the depth
+        # imager's, whose axes librealsense reports a D435i's / D455's IMU readings in
+        for source in (rs.stream.accel, rs.stream.depth):
+            try:
+                ext = profile.get_stream(source).get_extrinsics_to(colour)
+            except RuntimeError:
+                continue
             R = core.extrinsics_matrix(ext.rotation, ext.translation)[:3, :3]
-        except RuntimeError:
-            R = None
+            break
 
     def info(what: Any) -> str:
         return device.get_info(what) if device.supports(what) else "?"
