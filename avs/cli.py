@@ -13,6 +13,7 @@ from avs.commands import (
     gaze_experiment,
     grasp_experiment,
     perceive,
+    realsense,
     record,
     replay_bag,
     run,
@@ -32,6 +33,7 @@ COMMANDS = (
     up,
     status,
     sim,
+    realsense,
     scene,
     perceive,
     fuse,
@@ -68,6 +70,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     if argv[:1] == ["sim"]:  # everything after 'sim' belongs to the sim's own parser
         setup_logging("avs", "sim")
         sys.exit(sim.run(argv[1:]))
+    if argv[:1] == ["realsense"]:  # likewise the adapter's
+        sys.exit(realsense.run(argv[1:]))
     args = build_parser().parse_args(argv)
     setup_logging("avs", args.command, args.log_level)
     try:

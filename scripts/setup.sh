@@ -63,7 +63,7 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   say "installing Python packages into $AVS_VENV (the first time takes a few minutes)"
   "$AVS_VENV/bin/python" -m pip install --disable-pip-version-check -q --upgrade pip
   "$AVS_VENV/bin/python" -m pip install --disable-pip-version-check --progress-bar on \
-    -c "$AVS_ROOT/constraints.txt" -e "$AVS_ROOT[dev,bench]"
+    -c "$AVS_ROOT/constraints.txt" -e "$AVS_ROOT[dev,bench,realsense]"
   echo "$want" > "$stamp"
 fi
 
