@@ -31,6 +31,8 @@ class ReplayNode:
         self.outputs: dict[str, Output] = {}
         self.played = 0
         self.t = 0.0
+        for key in recording.counts:  # declared up front: a declaration costs time mid-replay
+            self._output(key)
         node.serve(node.keys.sim_control(), self.on_control, SimControl)
         node._start_thread(self.play, "sim:replay")
         log.info(
