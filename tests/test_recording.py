@@ -6,6 +6,8 @@ from __future__ import annotations
 import itertools
 import json
 import os
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -16,9 +18,9 @@ from mcap.writer import Writer
 
 from schemas import BaseGoal, BaseVelocity, decode, encode
 from schemas.export import export_json_schemas
-from services.common.legacy_recording import convert_legacy
 from services.common.playback import open_recording
 from services.common.recording import RecordingError, RecordingWriter
+from tests.conftest import ROOT
 from tests.streams import imu_sample, rgbd_frame
 
 IMU, RGBD, BASE = (
@@ -115,6 +117,11 @@ def test_files_that_are_no_avs_recording_are_refused_with_the_reason(tmp_path):
     text.write_text("not a recording\n" * 10)
     with pytest.raises(RecordingError, match=r"notes.mcap: not an MCAP file"):
         open_recording(text)
+    cut = tmp_path / "cut.mcap"
+    _write_from_threads(cut)
+    cut.write_bytes(cut.read_bytes()[:-100])  # a recorder killed before it wrote the footer
+    with pytest.raises(RecordingError, match=r"cut.mcap: an MCAP file cut short"):
+        open_recording(cut)
     foreign = tmp_path / "camera.mcap"
     with open(foreign, "wb") as f:
         w = Writer(f)
@@ -142,7 +149,9 @@ def test_an_old_recording_converts_with_one_command_and_replays_the_same(tmp_pat
     _old_recording(old, records)
     with pytest.raises(RecordingError, match="avs record --convert"):
         open_recording(old)
-    assert convert_legacy(old, new) == 51
+    convert = [sys.executable, "-m", "avs.cli", "record", "--convert", str(old), "--out", str(new)]
+    done = subprocess.run(convert, capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert done.returncode == 0 and f"converted 51 messages from {old}" in done.stderr
     recording = open_recording(new)
     assert recording.keys == ["avs/a/**"]
     replayed = [(r.t, r.key, r.payload) for r in recording.records]

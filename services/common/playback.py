@@ -17,7 +17,8 @@ from mcap.well_known import MessageEncoding
 from services.common.legacy_recording import is_legacy_recording
 from services.common.recording import METADATA, RecordingError
 
-_BROKEN = (McapError, EOFError, struct.error, ValueError, KeyError)
+_BROKEN = (McapError, EOFError, OSError, struct.error, ValueError, KeyError)
+MAGIC = b"\x89MCAP0\r\n"
 
 
 @dataclass(frozen=True)
@@ -51,18 +52,25 @@ def open_recording(path: Path) -> Recording:
     """Open an MCAP recording for replay; a ``RecordingError`` says why a file cannot be."""
     if not path.is_file():
         raise RecordingError(f"recording {path}: no such file")
+    with open(path, "rb") as probe:
+        magic = probe.read(len(MAGIC))
+    if magic != MAGIC:
+        if is_legacy_recording(path):
+            raise RecordingError(
+                f"{path}: an AVS recording of the old msgpack-stream format; convert it with "
+                f"'avs record --convert {path} --out NEW.mcap'"
+            )
+        raise RecordingError(f"{path}: not an MCAP file (it does not start with the MCAP magic)")
     f: BinaryIO = open(path, "rb")  # noqa: SIM115 - closed when the records end
     try:
         reader = make_reader(f)
         summary = reader.get_summary()
     except _BROKEN as e:
         f.close()
-        if is_legacy_recording(path):
-            raise RecordingError(
-                f"{path}: an AVS recording of the old msgpack-stream format; convert it with "
-                f"'avs record --convert {path} --out NEW.mcap'"
-            ) from None
-        raise RecordingError(f"{path}: not an MCAP file ({e})") from None
+        why = str(e) or type(e).__name__
+        raise RecordingError(
+            f"{path}: an MCAP file cut short or damaged (was its recorder killed?): {why}"
+        ) from None
     if summary is None:
         f.close()
         raise RecordingError(f"{path}: an MCAP file without summary (was its recorder killed?)")
@@ -74,7 +82,7 @@ def open_recording(path: Path) -> Recording:
         )
         raise RecordingError(
             f"{path}: no AVS channels (msgpack messages on avs/... topics); "
-            f"it has {found or 'no channels at all'}"
+            f"it has {found or 'no channels at all (nothing was recorded)'}"
         )
     stats = summary.statistics
     counts: dict[str, int] = {}
