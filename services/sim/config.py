@@ -21,7 +21,9 @@ class SimSettings(ServiceSettings):
         description="advance only when sim/control asks (step, render) instead of "
         "running on the wall clock",
     )
-    replay: Path | None = Field(None, description="play a recording (avs record) instead")
+    replay: Path | None = Field(
+        None, description="play an MCAP recording (avs record) instead, with its timing"
+    )
     replay_wait: float = Field(
         10.0, ge=0, description="seconds a replay waits for a subscriber before it starts"
     )

@@ -1,41 +1,48 @@
-"""Replay: the second implementation of the sensor contract. It puts the recorded payloads back
-on their keys with their original timing (scaled by --speed), so a consumer cannot tell it from
-the sim. It answers sim/control with its status and stops the node at the end."""
+"""Replay: the second implementation of the sensor contract. It puts the payloads of an MCAP
+recording (``avs record``) back on their keys in log-time order with their recorded timing
+(scaled by --speed), so a consumer cannot tell it from the sim. It answers sim/control with its
+status and stops the node at the end."""
 
 from __future__ import annotations
 
 import itertools
 import logging
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 from schemas import SimControl, SimStatus
 from services.common.node import Node, Output
-from services.common.recording import Record, read_recording
+from services.common.playback import Recording, open_recording
+from services.common.recording import RecordingError
 from services.sim.config import SimSettings
 
 log = logging.getLogger("avs.sim")
 
 
-def open_replay(path: Path) -> tuple[dict, Iterator[Record]]:
-    if not path.is_file():
-        raise ValueError(f"recording {path}: no such file")
-    return read_recording(path)
+def open_replay(path: Path) -> Recording:
+    """The recording to play; a ``ValueError`` names the file and what is wrong with it."""
+    return open_recording(path)
 
 
 class ReplayNode:
-    def __init__(
-        self, node: Node, settings: SimSettings, recording: tuple[dict, Iterator[Record]]
-    ) -> None:
+    def __init__(self, node: Node, settings: SimSettings, recording: Recording) -> None:
         self.node, self.settings = node, settings
-        self.header, self.records = recording
+        self.recording, self.records = recording, recording.records
         self.outputs: dict[str, Output] = {}
         self.played = 0
         self.t = 0.0
+        for key in recording.counts:  # declared up front: a declaration costs time mid-replay
+            self._output(key)
         node.serve(node.keys.sim_control(), self.on_control, SimControl)
         node._start_thread(self.play, "sim:replay")
-        log.info("replaying", extra={"file": str(settings.replay), "keys": self.header["keys"]})
+        log.info(
+            "replaying",
+            extra={
+                "file": str(settings.replay),
+                "keys": recording.keys,
+                "counts": recording.counts,
+            },
+        )
 
     def _output(self, key: str) -> Output:
         if key not in self.outputs:
@@ -43,6 +50,17 @@ class ReplayNode:
         return self.outputs[key]
 
     def play(self) -> None:
+        try:
+            self._play()
+        except RecordingError as e:
+            log.error("replay stopped: %s", e)
+        log.info("replay finished", extra={"records": self.played})
+        # linger before closing the session, as a socket does: the last large frames may still
+        # be on their way through the router
+        self.node._stop.wait(self.settings.replay_linger)
+        self.node.stop()
+
+    def _play(self) -> None:
         first = next(self.records, None)
         if first is not None:  # give subscribers a moment to match the first key
             out = self._output(first.key)
@@ -59,11 +77,6 @@ class ReplayNode:
             self._output(record.key).put_raw(record.payload)
             self.played += 1
             self.t = record.t
-        log.info("replay finished", extra={"records": self.played})
-        # linger before closing the session, as a socket does: the last large frames may still
-        # be on their way through the router
-        self.node._stop.wait(self.settings.replay_linger)
-        self.node.stop()
 
     def on_control(self, request: SimControl | None) -> SimStatus:
         ok = request is None or request.op == "status"

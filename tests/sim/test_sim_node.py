@@ -11,6 +11,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 import zenoh
+from mcap.reader import make_reader
 
 from schemas import (
     BaseGoal,
@@ -28,6 +29,7 @@ from schemas import (
     decode,
     encode,
 )
+from schemas.export import json_schema_text
 from tests.conftest import avs_env, liveliness_tokens, matched_publisher, wait_for
 
 KEYS = Keys()
@@ -209,7 +211,7 @@ def test_recording_replays_the_same_messages_in_the_same_order(client, router, p
         instance="rec",
     )
     wait_alive(client, "rec", sim)
-    out = tmp_path / "run.avsrec"
+    out = tmp_path / "run.mcap"
     recorder = procs.python(
         ["-m", "avs.cli", "record", "sensors/**", "state/**", "--out", str(out)],
         env=avs_env(router),
@@ -231,6 +233,22 @@ def test_recording_replays_the_same_messages_in_the_same_order(client, router, p
     sim.terminate()
     sim.wait(30)
     original.close()
+
+    # the mcap package's reader opens it: a msgpack channel per key, with the message's schema
+    with open(out, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary.statistics.message_count == len(original.items)
+    topics = {str(k) for k, _ in original.items}
+    assert {c.topic for c in summary.channels.values()} == topics
+    assert len(summary.channels) == len(topics)  # one type per key here
+    for cid, channel in summary.channels.items():
+        schema = summary.schemas[channel.schema_id]
+        sent = next(decode(p) for k, p in original.items if k == channel.topic)
+        assert (channel.message_encoding, schema.encoding) == ("msgpack", "jsonschema")
+        assert schema.name == sent.SCHEMA and schema.data.decode() == json_schema_text(sent.SCHEMA)
+        assert summary.statistics.channel_message_counts[cid] == sum(
+            k == channel.topic for k, _ in original.items
+        )
 
     replayed = Collector(client, *streams)
     replay = start_sim(procs, router, "--replay", str(out), "--speed", "5", instance="replay")
