@@ -227,8 +227,8 @@ class Planner:
         """Plan one step on a small made-up map: loads the compiled kernels (IG, visibility,
         floor map, segment checks), or compiles them on a machine's first run (seconds), before
         the node announces itself rather than in the middle of an episode's first step. The
-        map has no obstacle between the views and its centre, so no path needs OMPL (whose
-        random generator would move), and the planner's own state is put back."""
+        map has no obstacle between the robot and any view, so no path needs OMPL (whose random
+        generator would move), and the planner's own state is put back."""
         voxel, n = 0.05, np.array([80, 80, 40])
         centre = np.array([0.0, 0.0, 0.9])
         origin = centre - n * voxel / 2
@@ -242,7 +242,9 @@ class Planner:
         fan_out, self.coarse_gains = self.coarse_gains, None
         self.config = replace(config, k=24, samples=20)  # a few views do (k=12 reaches none)
         try:
-            self.plan(centre[None], None, states, origin, voxel, (-1.5, 0.0, 0.0),
+            # from the table's middle (the robot's own disc is cleared of obstacles) every
+            # path is a straight line out: no RRT, whose draws would change the episode's
+            self.plan(centre[None], None, states, origin, voxel, (centre[0], centre[1], 0.0),
                       np.zeros((0, 3)), 1)  # fmt: skip
         finally:
             self.config, self.rng.bit_generator.state = config, rng
