@@ -17,6 +17,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from schemas import CameraIntrinsics, RgbdFrame
+from services.adapters.camera import depth_to_metres, fixed_camera_pose
 
 #: standard gravity, m/s² (what a resting accelerometer reads, upwards)
 GRAVITY = 9.80665
@@ -61,7 +62,7 @@ def depth_metres(
     outside ``[depth_min, depth_max]`` set to 0 (no return), as the sim does. Always a copy."""
     if z16.dtype != np.uint16 or z16.ndim != 2:
         raise ValueError(f"depth must be a 2-D uint16 image, got {z16.dtype} {z16.shape}")
-    depth = z16.astype(np.float32) * np.float32(scale)
+    depth = depth_to_metres(z16, scale)
     depth[(depth < depth_min) | (depth > depth_max)] = 0.0
     return depth
 
@@ -85,17 +86,8 @@ def T_world_camera(
     """The fixed pose of an optical camera frame in the z-up world: at (x, y, z), heading
     ``yaw`` about world z (0: looking along +x), pitched ``pitch`` degrees down, rolled
     ``roll`` about its optical axis. With no kinematics this stands in for the robot's."""
-    # a level camera looking along +x: x_cam = -y_world (right), y_cam = -z_world (down)
-    level = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-    R = (
-        Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix()
-        @ Rotation.from_euler("y", pitch_deg, degrees=True).as_matrix()  # +y tips +x down
-        @ level
-        @ Rotation.from_euler("z", roll_deg, degrees=True).as_matrix()
-    )
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, (x, y, z)
-    return T
+    radians = np.radians([roll_deg, pitch_deg, yaw_deg])
+    return fixed_camera_pose(x, y, z, *radians)
 
 
 def extrinsics_matrix(rotation: Sequence[float], translation: Sequence[float]) -> np.ndarray:
