@@ -51,9 +51,9 @@ def test_the_first_occupied_voxel_stops_a_ray_and_range_limits_it():
 
 
 def test_hierarchical_evaluation_picks_the_best_view_of_the_full_one():
-    """On 100 random maps (free space with unknown and occupied blocks), the best view after
+    """On 60 random maps (free space with unknown and occupied blocks), the best view after
     every 30th ray + every ray for the best 3 is the best view of the full evaluation on at
-    least 95 of them."""
+    least 95 % of them."""
     rng = np.random.default_rng(1)
     intrinsics = (320, 240, 291.0, 290.0, 159.5, 119.5)  # 640×480 halved
     full_rays = pixel_rays(*intrinsics, every=1)
@@ -61,7 +61,7 @@ def test_hierarchical_evaluation_picks_the_best_view_of_the_full_one():
     origin = np.array([-1.0, -1.0, 0.0])
     centre = np.array([0.0, 0.0, 0.6])
     agree = 0
-    for _ in range(100):
+    for _ in range(60):
         states = np.ones(shape, np.uint8)
         for value, count in ((0, 6), (2, 4)):
             for _ in range(count):
@@ -73,8 +73,8 @@ def test_hierarchical_evaluation_picks_the_best_view_of_the_full_one():
         gains, best = hierarchical(states, origin, voxel, views, intrinsics, 3.0, 30, 3)
         assert np.array_equal(gains[best], full[best])  # the best k are evaluated in full
         agree += int(np.argmax(gains)) == int(np.argmax(full))
-    assert agree >= 95, agree
-    print(f"hierarchical agrees with full on {agree} of 100 maps")
+    assert agree >= 57, agree
+    print(f"hierarchical agrees with full on {agree} of 60 maps")
 
 
 def test_uniform_blocks_are_crossed_in_one_step_without_changing_the_count():
