@@ -15,7 +15,6 @@ dense array: 4 m × 4 m × 2 m at 1 cm is 32 M voxels, 64 MB.
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -74,24 +73,21 @@ def _depth_points(z, fx, fy, cx, cy, T, depth_min, depth_max, every):
 
 #: the cache of end voxels outside the map or beyond range, merged as OctoMap's discretize does
 SEEN_SLOTS = 1 << 16
-#: rays are cast in passes, coarse to fine: a pass per range here, whose rays are spaced about a
-#: voxel apart at that range (one ray per direction cell of voxel / range), then the rest;
-#: the blocks the coarse passes fill near the sensor the later rays cross in one step each
-PASS_RANGES = (0.2, 0.4, 0.8, 1.6)
-#: the direction cells cover the directions within atan(PASS_SPAN) of the scan's mean one
-PASS_SPAN = 2.0
+#: the direction cells of ``_fill``: squares of FILL_CELL on the plane one metre along the scan's
+#: mean direction (about 5 pixels of a 640×480 camera), within FILL_SPAN of its centre
+FILL_CELL, FILL_SPAN = 0.01, 2.0
+#: ``_fill`` marks a block where the rays crossing it are at most this many voxels apart (a
+#: lattice that dense crosses every voxel: its cross-section holds a disc of a voxel's width)
+FILL_SPACING = 0.6
 #: what a snapshot leaves out
 SCRATCH = (
     "_visited",
     "_hit",
     "_dirty",
     "_rays",
-    "_ray_scratch",
     "_seen",
-    "_deltas",
-    "_grid_w",
-    "_grid_off",
-    "_grids",
+    "_cnt",
+    "_emin",
     "_milli",
 )
 
@@ -137,47 +133,24 @@ def _slot(ix, iy, iz, by, bz):
     return block, (block << 6) | ((ix & 7) << 3) | (iy & 7), np.uint8(1 << (iz & 7))
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span):
-    """The pass of the ray along (dx, dy, dz): the coarsest level whose direction cell (a
-    square of ``deltas[level]`` on the plane z = 1 of ``basis``) no ray claimed yet, or the
-    last pass. Each pass then holds about one ray per cell: the coarse passes fill the space
-    near the sensor, which the rays of the later passes cross block by block."""
-    last = deltas.shape[0]
-    c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
-    if c <= 0.25 * dist:
-        return last
-    u = (dx * basis[1, 0] + dy * basis[1, 1] + dz * basis[1, 2]) / c + span
-    v = (dx * basis[2, 0] + dy * basis[2, 1] + dz * basis[2, 2]) / c + span
-    if not (0.0 <= u < 2 * span and 0.0 <= v < 2 * span):
-        return last
-    for k in range(last):
-        cell = grid_off[k] + int(u / deltas[k]) * grid_w[k] + int(v / deltas[k])
-        if grids[cell] == 0:
-            grids[cell] = 1
-            return k
-    return last
-
-
 @njit(cache=True, nogil=True)
 def _hits(
     visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, max_range, discretize,
-    seen, basis, deltas, grids, grid_off, grid_w, span, scratch, rays, starts,
+    seen, basis, span, delta, cnt, emin, rays,
 ):  # fmt: skip
     """First pass, one thread: set the hit and visited bits of the voxel of every return
-    within range inside the map, and list the rays to cast in ``rays``, pass by pass (ray
-    ``i`` of pass ``k`` at ``starts[k] + i``; ``starts`` gets the passes' bounds; see
-    ``_level``); returns their number. With ``discretize`` every point is first moved to the
-    centre of its voxel and one ray is cast per voxel (OctoMap's ``discretize``, which merges
-    the points beyond range and outside the map too: those through ``seen``, a direct-mapped
-    cache of voxel keys, which may let a repeat through, never drop a new one); otherwise one
-    ray per point. Points with a NaN or inf coordinate are skipped."""
+    within range inside the map, and list the rays to cast in ``rays``; returns their number.
+    With ``discretize`` every point is first moved to the centre of its voxel and one ray is
+    cast per voxel (OctoMap's ``discretize``, which merges the points beyond range and outside
+    the map too: those through ``seen``, a direct-mapped cache of voxel keys, which may let a
+    repeat through, never drop a new one); otherwise one ray per point. Points with a NaN or
+    inf coordinate are skipped. Each ray is counted in its direction cell (``cnt``, a square
+    of ``delta`` on the plane z = 1 of ``basis``, within ``span`` of its centre) and the cell
+    keeps the shortest ray's length (``emin``, cut at ``max_range``): ``_fill``'s input."""
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
     inv = 1.0 / voxel
     mask = seen.shape[0] - 1
-    levels = deltas.shape[0] + 1
-    count = np.zeros(levels, np.int64)
-    level = np.empty(points.shape[0], np.int8)
+    gw = int(2 * span / delta) + 1
     n = 0
     for r in range(points.shape[0]):
         px, py, pz = points[r, 0], points[r, 1], points[r, 2]
@@ -208,20 +181,100 @@ def _hits(
             if seen[slot] == key:
                 continue
             seen[slot] = key
-        k = _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span)
-        level[n] = k
-        count[k] += 1
-        scratch[n, 0], scratch[n, 1], scratch[n, 2] = px, py, pz
+        c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
+        if c > 0.25 * dist:
+            u = (dx * basis[1, 0] + dy * basis[1, 1] + dz * basis[1, 2]) / c + span
+            v = (dx * basis[2, 0] + dy * basis[2, 1] + dz * basis[2, 2]) / c + span
+            if 0.0 <= u < 2 * span and 0.0 <= v < 2 * span:
+                cell = int(u / delta) * gw + int(v / delta)
+                cnt[cell] += 1
+                emin[cell] = min(emin[cell], min(dist, max_range))
+        rays[n, 0], rays[n, 1], rays[n, 2] = px, py, pz
         n += 1
-    starts[0] = 0
-    for k in range(levels):
-        starts[k + 1] = starts[k] + count[k]
-    at = starts[:levels].copy()
-    for i in range(n):
-        j = at[level[i]]
-        at[level[i]] = j + 1
-        rays[j, 0], rays[j, 1], rays[j, 2] = scratch[i, 0], scratch[i, 1], scratch[i, 2]
     return n
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _fill(
+    visited, hit, dirty, nx, ny, nz, lo, voxel, origin, max_range,
+    basis, span, delta, cnt, emin, spacing,
+):  # fmt: skip
+    """The free space in bulk: mark every voxel of an 8×8×8 block visited where the scan's
+    rays certainly cross them all: the block lies wholly inside the map and in front of the
+    sensor, and every direction cell its corners span (and one more around) holds rays that
+    all reach a voxel past it (``emin``), so many that they are at most ``spacing`` voxels
+    apart across it (``cnt``: rays of a cell of ``delta`` at distance r are r·delta/√cnt
+    apart). The rays then cross such a block in one step (``_walk``) instead of voxel by
+    voxel; what differs from casting them all is the voxels the rays would have missed
+    between them, which the density bound keeps rare. Returns the blocks marked."""
+    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
+    w = int(2 * span / delta) + 1
+    words, hits = visited.view(np.int64), hit.view(np.int64)
+    size = 8 * voxel
+    half_diagonal = size * math.sqrt(3) / 2
+    marked = np.zeros(nx >> 3, np.int64)
+    for bx in prange(nx >> 3):
+        for byi in range(ny >> 3):
+            for bzi in range(nz >> 3):
+                x0 = lo[0] + bx * size - origin[0]
+                y0 = lo[1] + byi * size - origin[1]
+                z0 = lo[2] + bzi * size - origin[2]
+                cx, cy, cz = x0 + size / 2, y0 + size / 2, z0 + size / 2
+                far = math.sqrt(cx * cx + cy * cy + cz * cz) + half_diagonal
+                if far + voxel > max_range:
+                    continue
+                c = cx * basis[0, 0] + cy * basis[0, 1] + cz * basis[0, 2]
+                if c < 0.5 * far:
+                    continue  # behind the sensor or off to the side: no cell holds it
+                u0 = v0 = 1e30
+                u1 = v1 = -1e30
+                ok = True
+                for k in range(8):
+                    dx = x0 + size * (k & 1)
+                    dy = y0 + size * ((k >> 1) & 1)
+                    dz = z0 + size * (k >> 2)
+                    c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
+                    if c <= 0.25 * math.sqrt(dx * dx + dy * dy + dz * dz):
+                        ok = False
+                        break
+                    u = (dx * basis[1, 0] + dy * basis[1, 1] + dz * basis[1, 2]) / c
+                    v = (dx * basis[2, 0] + dy * basis[2, 1] + dz * basis[2, 2]) / c
+                    u0, u1, v0, v1 = min(u0, u), max(u1, u), min(v0, v), max(v1, v)
+                if not ok:
+                    continue
+                iu0, iu1 = int((u0 + span) / delta) - 1, int((u1 + span) / delta) + 1
+                iv0, iv1 = int((v0 + span) / delta) - 1, int((v1 + span) / delta) + 1
+                if iu0 < 0 or iv0 < 0 or iu1 >= w or iv1 >= w:
+                    continue
+                need = (far * delta / (spacing * voxel)) ** 2
+                for iu in range(iu0, iu1 + 1):
+                    for iv in range(iv0, iv1 + 1):
+                        cell = iu * w + iv
+                        if cnt[cell] < need or emin[cell] < far + voxel:
+                            ok = False
+                            break
+                    if not ok:
+                        break
+                if not ok:
+                    continue
+                block = (bx * by + byi) * bz + bzi
+                k = block << 3
+                if (
+                    hits[k]
+                    | hits[k + 1]
+                    | hits[k + 2]
+                    | hits[k + 3]
+                    | hits[k + 4]
+                    | hits[k + 5]
+                    | hits[k + 6]
+                    | hits[k + 7]
+                ):
+                    continue
+                for j in range(8):
+                    words[k + j] = -1
+                dirty[block] = 1
+                marked[bx] += 1
+    return marked.sum()
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -515,15 +568,10 @@ class OccupancyMap:
         self._hit = np.zeros(blocks * 64, np.uint8)
         self._dirty = np.zeros(blocks, np.uint8)
         self._rays = np.zeros((0, 3), np.float64)
-        self._ray_scratch = np.zeros((0, 3), np.float64)
         self._seen = np.full(SEEN_SLOTS, -1, np.int64)
-        v = self.config.voxel
-        ranges = [r for r in PASS_RANGES if 2 * PASS_SPAN * r / v <= 2048]  # cells ≤ 4 M a pass
-        self._deltas = np.array([v / r for r in ranges], np.float64)
-        widths = [math.ceil(2 * PASS_SPAN / d) + 1 for d in self._deltas]
-        self._grid_w = np.array(widths, np.int64)
-        self._grid_off = np.concatenate([[0], np.cumsum(np.square(widths))[:-1]]).astype(np.int64)
-        self._grids = np.zeros(int(np.square(widths).sum()), np.uint8)
+        cells = (int(2 * FILL_SPAN / FILL_CELL) + 1) ** 2
+        self._cnt = np.zeros(cells, np.int32)
+        self._emin = np.zeros(cells, np.float64)
         # the updates and their bounds in stored thousandths (``_apply``)
         c = self.config
         logits = (c.p_hit, c.p_miss, c.clamp_min, c.clamp_max)
@@ -570,22 +618,16 @@ class OccupancyMap:
         max_range = self.config.max_range if max_range is None else max_range
         if len(self._rays) < len(points):
             self._rays = np.empty((len(points), 3), np.float64)
-            self._ray_scratch = np.empty((len(points), 3), np.float64)
         nx, ny, nz = self.shape
         grid = (self._visited, self._hit, self._dirty, nx, ny, nz, self.lo, self.voxel, origin)
-        starts = np.zeros(len(self._deltas) + 2, np.int64)
         self._seen.fill(-1)
-        self._grids.fill(0)
-        _hits(
-            *grid, points, max_range, self.config.discretize, self._seen,
-            _basis(points, origin), self._deltas, self._grids, self._grid_off, self._grid_w,
-            PASS_SPAN, self._ray_scratch, self._rays, starts,
-        )  # fmt: skip
-        threads = numba.get_num_threads()
-        for a, b in itertools.pairwise(starts):
-            if b > a:
-                chunks = max(1, min(threads * 32, (b - a) // 64 + 1))
-                _free(*grid, self._rays[a:b], max_range, chunks)
+        self._cnt.fill(0)
+        self._emin.fill(np.inf)
+        cells = (_basis(points, origin), FILL_SPAN, FILL_CELL, self._cnt, self._emin)
+        n = _hits(*grid, points, max_range, self.config.discretize, self._seen, *cells, self._rays)
+        _fill(*grid, max_range, *cells, FILL_SPACING)
+        chunks = max(1, min(numba.get_num_threads() * 32, n // 256 + 1))
+        _free(*grid, self._rays[:n], max_range, chunks)
         blocks = np.flatnonzero(self._dirty)
         self._dirty[blocks] = 0
         count = _apply(self.L, self._visited, self._hit, blocks, *self._milli)
