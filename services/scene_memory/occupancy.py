@@ -79,6 +79,7 @@ FILL_CELL, FILL_SPAN = 0.01, 2.0
 #: ``_fill`` marks a block where the rays crossing it are at most this many voxels apart (a
 #: lattice that dense crosses every voxel: its cross-section holds a disc of a voxel's width)
 FILL_SPACING = 0.6
+RANGE_MERGE = 1.0
 #: what a snapshot leaves out
 SCRATCH = (
     "_visited",
@@ -136,7 +137,7 @@ def _slot(ix, iy, iz, by, bz):
 @njit(cache=True, nogil=True)
 def _hits(
     visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, max_range, discretize,
-    seen, basis, span, delta, cnt, emin, rays,
+    seen, basis, span, delta, cnt, emin, rays, merge,
 ):  # fmt: skip
     """First pass, one thread: set the hit and visited bits of the voxel of every return
     within range inside the map, and list the rays to cast in ``rays``; returns their number.
@@ -172,6 +173,18 @@ def _hits(
                 hit[w] |= bit
                 visited[w] |= bit
                 dirty[block] = 1
+        elif discretize and dist > max_range and merge > 0:
+            # a ray past the range clears space up to the range only: one per voxel (of
+            # ``merge`` voxels) of the points where the rays cross it
+            g = max_range / dist * inv / merge
+            kx = min(max(math.floor(dx * g), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
+            ky = min(max(math.floor(dy * g), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
+            kz = min(max(math.floor(dz * g), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
+            key = -((kx << 42) | (ky << 21) | kz) - 2
+            slot = ((key * 0x9E3779B97F4A7C1) >> 20) & mask
+            if seen[slot] == key:
+                continue
+            seen[slot] = key
         elif discretize:
             kx = min(max(math.floor(fx), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
             ky = min(max(math.floor(fy), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
@@ -624,8 +637,18 @@ class OccupancyMap:
         self._cnt.fill(0)
         self._emin.fill(np.inf)
         cells = (_basis(points, origin), FILL_SPAN, FILL_CELL, self._cnt, self._emin)
-        n = _hits(*grid, points, max_range, self.config.discretize, self._seen, *cells, self._rays)
-        _fill(*grid, max_range, *cells, FILL_SPACING)
+        n = _hits(
+            *grid,
+            points,
+            max_range,
+            self.config.discretize,
+            self._seen,
+            *cells,
+            self._rays,
+            RANGE_MERGE,
+        )
+        if FILL_SPACING > 0:
+            _fill(*grid, max_range, *cells, FILL_SPACING)
         chunks = max(1, min(numba.get_num_threads() * 32, n // 256 + 1))
         _free(*grid, self._rays[:n], max_range, chunks)
         blocks = np.flatnonzero(self._dirty)
