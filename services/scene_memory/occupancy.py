@@ -15,6 +15,7 @@ dense array: 4 m × 4 m × 2 m at 1 cm is 32 M voxels, 64 MB.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -73,22 +74,26 @@ def _depth_points(z, fx, fy, cx, cy, T, depth_min, depth_max, every):
 
 #: the cache of end voxels outside the map or beyond range, merged as OctoMap's discretize does
 SEEN_SLOTS = 1 << 16
-#: the direction cells of ``_fill``: squares of FILL_CELL on the plane one metre along the scan's
-#: mean direction (about 5 pixels of a 640×480 camera), within FILL_SPAN of its centre
-FILL_CELL, FILL_SPAN = 0.01, 2.0
-#: ``_fill`` marks a block where the rays crossing it are at most this many voxels apart (a
-#: lattice that dense crosses every voxel: its cross-section holds a disc of a voxel's width)
-FILL_SPACING = 0.6
-RANGE_MERGE = 1.0
+#: rays are cast in passes, coarse to fine: a pass per range here, whose rays are spaced about a
+#: voxel apart at that range (one ray per direction cell of voxel / range), then the rest;
+#: the blocks the coarse passes fill near the sensor the later rays cross in one step each
+PASS_RANGES = (0.2, 0.4, 0.8, 1.6, 3.2)
+#: a ray stops once it crossed this many voxels in a row that earlier rays cleared (``_walk``)
+PATIENCE = 48
+#: the direction cells cover the directions within atan(PASS_SPAN) of the scan's mean one
+PASS_SPAN = 2.0
 #: what a snapshot leaves out
 SCRATCH = (
     "_visited",
     "_hit",
     "_dirty",
     "_rays",
+    "_ray_scratch",
     "_seen",
-    "_cnt",
-    "_emin",
+    "_deltas",
+    "_grid_w",
+    "_grid_off",
+    "_grids",
     "_milli",
 )
 
@@ -134,24 +139,47 @@ def _slot(ix, iy, iz, by, bz):
     return block, (block << 6) | ((ix & 7) << 3) | (iy & 7), np.uint8(1 << (iz & 7))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span):
+    """The pass of the ray along (dx, dy, dz): the coarsest level whose direction cell (a
+    square of ``deltas[level]`` on the plane z = 1 of ``basis``) no ray claimed yet, or the
+    last pass. Each pass then holds about one ray per cell: the coarse passes fill the space
+    near the sensor, which the rays of the later passes cross block by block."""
+    last = deltas.shape[0]
+    c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
+    if c <= 0.25 * dist:
+        return last
+    u = (dx * basis[1, 0] + dy * basis[1, 1] + dz * basis[1, 2]) / c + span
+    v = (dx * basis[2, 0] + dy * basis[2, 1] + dz * basis[2, 2]) / c + span
+    if not (0.0 <= u < 2 * span and 0.0 <= v < 2 * span):
+        return last
+    for k in range(last):
+        cell = grid_off[k] + int(u / deltas[k]) * grid_w[k] + int(v / deltas[k])
+        if grids[cell] == 0:
+            grids[cell] = 1
+            return k
+    return last
+
+
 @njit(cache=True, nogil=True)
 def _hits(
     visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, max_range, discretize,
-    seen, basis, span, delta, cnt, emin, rays, merge,
+    seen, basis, deltas, grids, grid_off, grid_w, span, scratch, rays, starts,
 ):  # fmt: skip
     """First pass, one thread: set the hit and visited bits of the voxel of every return
-    within range inside the map, and list the rays to cast in ``rays``; returns their number.
-    With ``discretize`` every point is first moved to the centre of its voxel and one ray is
-    cast per voxel (OctoMap's ``discretize``, which merges the points beyond range and outside
-    the map too: those through ``seen``, a direct-mapped cache of voxel keys, which may let a
-    repeat through, never drop a new one); otherwise one ray per point. Points with a NaN or
-    inf coordinate are skipped. Each ray is counted in its direction cell (``cnt``, a square
-    of ``delta`` on the plane z = 1 of ``basis``, within ``span`` of its centre) and the cell
-    keeps the shortest ray's length (``emin``, cut at ``max_range``): ``_fill``'s input."""
+    within range inside the map, and list the rays to cast in ``rays``, pass by pass (ray
+    ``i`` of pass ``k`` at ``starts[k] + i``; ``starts`` gets the passes' bounds; see
+    ``_level``); returns their number. With ``discretize`` every point is first moved to the
+    centre of its voxel and one ray is cast per voxel (OctoMap's ``discretize``, which merges
+    the points beyond range and outside the map too: those through ``seen``, a direct-mapped
+    cache of voxel keys, which may let a repeat through, never drop a new one); otherwise one
+    ray per point. Points with a NaN or inf coordinate are skipped."""
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
     inv = 1.0 / voxel
     mask = seen.shape[0] - 1
-    gw = int(2 * span / delta) + 1
+    levels = deltas.shape[0] + 1
+    count = np.zeros(levels, np.int64)
+    level = np.empty(points.shape[0], np.int8)
     n = 0
     for r in range(points.shape[0]):
         px, py, pz = points[r, 0], points[r, 1], points[r, 2]
@@ -173,18 +201,6 @@ def _hits(
                 hit[w] |= bit
                 visited[w] |= bit
                 dirty[block] = 1
-        elif discretize and dist > max_range and merge > 0:
-            # a ray past the range clears space up to the range only: one per voxel (of
-            # ``merge`` voxels) of the points where the rays cross it
-            g = max_range / dist * inv / merge
-            kx = min(max(math.floor(dx * g), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
-            ky = min(max(math.floor(dy * g), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
-            kz = min(max(math.floor(dz * g), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
-            key = -((kx << 42) | (ky << 21) | kz) - 2
-            slot = ((key * 0x9E3779B97F4A7C1) >> 20) & mask
-            if seen[slot] == key:
-                continue
-            seen[slot] = key
         elif discretize:
             kx = min(max(math.floor(fx), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
             ky = min(max(math.floor(fy), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
@@ -194,100 +210,20 @@ def _hits(
             if seen[slot] == key:
                 continue
             seen[slot] = key
-        c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
-        if c > 0.25 * dist:
-            u = (dx * basis[1, 0] + dy * basis[1, 1] + dz * basis[1, 2]) / c + span
-            v = (dx * basis[2, 0] + dy * basis[2, 1] + dz * basis[2, 2]) / c + span
-            if 0.0 <= u < 2 * span and 0.0 <= v < 2 * span:
-                cell = int(u / delta) * gw + int(v / delta)
-                cnt[cell] += 1
-                emin[cell] = min(emin[cell], min(dist, max_range))
-        rays[n, 0], rays[n, 1], rays[n, 2] = px, py, pz
+        k = _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span)
+        level[n] = k
+        count[k] += 1
+        scratch[n, 0], scratch[n, 1], scratch[n, 2] = px, py, pz
         n += 1
+    starts[0] = 0
+    for k in range(levels):
+        starts[k + 1] = starts[k] + count[k]
+    at = starts[:levels].copy()
+    for i in range(n):
+        j = at[level[i]]
+        at[level[i]] = j + 1
+        rays[j, 0], rays[j, 1], rays[j, 2] = scratch[i, 0], scratch[i, 1], scratch[i, 2]
     return n
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _fill(
-    visited, hit, dirty, nx, ny, nz, lo, voxel, origin, max_range,
-    basis, span, delta, cnt, emin, spacing,
-):  # fmt: skip
-    """The free space in bulk: mark every voxel of an 8×8×8 block visited where the scan's
-    rays certainly cross them all: the block lies wholly inside the map and in front of the
-    sensor, and every direction cell its corners span (and one more around) holds rays that
-    all reach a voxel past it (``emin``), so many that they are at most ``spacing`` voxels
-    apart across it (``cnt``: rays of a cell of ``delta`` at distance r are r·delta/√cnt
-    apart). The rays then cross such a block in one step (``_walk``) instead of voxel by
-    voxel; what differs from casting them all is the voxels the rays would have missed
-    between them, which the density bound keeps rare. Returns the blocks marked."""
-    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
-    w = int(2 * span / delta) + 1
-    words, hits = visited.view(np.int64), hit.view(np.int64)
-    size = 8 * voxel
-    half_diagonal = size * math.sqrt(3) / 2
-    marked = np.zeros(nx >> 3, np.int64)
-    for bx in prange(nx >> 3):
-        for byi in range(ny >> 3):
-            for bzi in range(nz >> 3):
-                x0 = lo[0] + bx * size - origin[0]
-                y0 = lo[1] + byi * size - origin[1]
-                z0 = lo[2] + bzi * size - origin[2]
-                cx, cy, cz = x0 + size / 2, y0 + size / 2, z0 + size / 2
-                far = math.sqrt(cx * cx + cy * cy + cz * cz) + half_diagonal
-                if far + voxel > max_range:
-                    continue
-                c = cx * basis[0, 0] + cy * basis[0, 1] + cz * basis[0, 2]
-                if c < 0.5 * far:
-                    continue  # behind the sensor or off to the side: no cell holds it
-                u0 = v0 = 1e30
-                u1 = v1 = -1e30
-                ok = True
-                for k in range(8):
-                    dx = x0 + size * (k & 1)
-                    dy = y0 + size * ((k >> 1) & 1)
-                    dz = z0 + size * (k >> 2)
-                    c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
-                    if c <= 0.25 * math.sqrt(dx * dx + dy * dy + dz * dz):
-                        ok = False
-                        break
-                    u = (dx * basis[1, 0] + dy * basis[1, 1] + dz * basis[1, 2]) / c
-                    v = (dx * basis[2, 0] + dy * basis[2, 1] + dz * basis[2, 2]) / c
-                    u0, u1, v0, v1 = min(u0, u), max(u1, u), min(v0, v), max(v1, v)
-                if not ok:
-                    continue
-                iu0, iu1 = int((u0 + span) / delta) - 1, int((u1 + span) / delta) + 1
-                iv0, iv1 = int((v0 + span) / delta) - 1, int((v1 + span) / delta) + 1
-                if iu0 < 0 or iv0 < 0 or iu1 >= w or iv1 >= w:
-                    continue
-                need = (far * delta / (spacing * voxel)) ** 2
-                for iu in range(iu0, iu1 + 1):
-                    for iv in range(iv0, iv1 + 1):
-                        cell = iu * w + iv
-                        if cnt[cell] < need or emin[cell] < far + voxel:
-                            ok = False
-                            break
-                    if not ok:
-                        break
-                if not ok:
-                    continue
-                block = (bx * by + byi) * bz + bzi
-                k = block << 3
-                if (
-                    hits[k]
-                    | hits[k + 1]
-                    | hits[k + 2]
-                    | hits[k + 3]
-                    | hits[k + 4]
-                    | hits[k + 5]
-                    | hits[k + 6]
-                    | hits[k + 7]
-                ):
-                    continue
-                for j in range(8):
-                    words[k + j] = -1
-                dirty[block] = 1
-                marked[bx] += 1
-    return marked.sum()
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -300,44 +236,15 @@ def _start(o, u, lo, n, voxel):
     return (ta, tb) if ta <= tb else (tb, ta)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _full(words, block):
-    """Whether every voxel of an 8×8×8 block is visited (its 64 bytes read as 8 words; bits
-    only ever get set during a scan, so a stale read can only say "not yet")."""
-    k = block << 3
-    return (
-        words[k]
-        & words[k + 1]
-        & words[k + 2]
-        & words[k + 3]
-        & words[k + 4]
-        & words[k + 5]
-        & words[k + 6]
-        & words[k + 7]
-    ) == -1
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _crossings(tm, td, te):
-    """How many of the boundary crossings at tm, tm + td, tm + 2·td … come before te."""
-    if tm >= te:
-        return 0
-    m = int((te - tm) / td) + 1
-    if m > 1 and tm + (m - 1) * td >= te:
-        m -= 1
-    return m
-
-
 @njit(cache=True, nogil=True)
-def _walk(visited, words, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range):
-    """One ray (3D DDA, Amanatides & Woo): sets the visited bit of every voxel on the way
-    to a return, or to the cut at ``max_range``, excluding the end's own voxel (OctoMap's
-    ``computeRayKeys``).
+def _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range, patience):
+    """One ray (3D DDA, Amanatides & Woo), walked from its end back to the sensor: sets the
+    visited bit of every voxel on the way from the sensor to a return, or to the cut at
+    ``max_range``, excluding the end's own voxel (OctoMap's ``computeRayKeys``), and stops
+    early once ``patience`` voxels in a row were visited already (0: never): the ray has
+    joined space that the rays cast before it (the coarser passes', ``_level``) cleared,
+    which it would only cross again.
     Threads share the bit set: the first visit sets the bit atomically, later ones only read.
-    An 8×8×8 block whose voxels are all visited already is crossed in one jump to the voxel
-    where the ray leaves it (``words``: the bit set as int64), which changes nothing the
-    ray would have set: near the sensor, where the rays of earlier passes filled the
-    blocks, a ray costs a step per block rather than per voxel.
     Scalars only: no array is allocated per ray."""
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
     ox, oy, oz = origin[0], origin[1], origin[2]
@@ -357,8 +264,8 @@ def _walk(visited, words, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_ra
     # the ray's end (a return, or the cut at max range) lies in the map: its voxel is not free
     end_inside = t1 >= length - 1e-9
     inv = 1.0 / voxel
-    # the voxels of the clipped segment: from the one at t0 to the one at t1, which is the hit
-    # voxel (excluded) when the ray ends inside the map
+    # the voxels of the clipped segment: from the one at t1 (the end's, skipped when the ray
+    # ends inside the map) back to the one at t0
     px, py, pz = (
         ox - lo[0] + ux * (t0 + 1e-9),
         oy - lo[1] + uy * (t0 + 1e-9),
@@ -375,38 +282,24 @@ def _walk(visited, words, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_ra
     jx = min(max(int(qx * inv), 0), nx - 1)
     jy = min(max(int(qy * inv), 0), ny - 1)
     jz = min(max(int(qz * inv), 0), nz - 1)
-    n = abs(jx - ix) + abs(jy - iy) + abs(jz - iz) + (0 if end_inside else 1)
-    sx, tmx, tdx = dda_axis(px, ux, voxel, ix)
-    sy, tmy, tdy = dda_axis(py, uy, voxel, iy)
-    sz, tmz, tdz = dda_axis(pz, uz, voxel, iz)
-    last = -1
-    while n > 0:
-        block, w, bit = _slot(ix, iy, iz, by, bz)
-        if block != last:
-            last = block
-            if _full(words, block):
-                # the parameter of the crossing that leaves the block along each axis; the
-                # first of them (ties as the DDA breaks them) is where the ray leaves it
-                kx = 8 - (ix & 7) if sx > 0 else (ix & 7) + 1
-                ky = 8 - (iy & 7) if sy > 0 else (iy & 7) + 1
-                kz = 8 - (iz & 7) if sz > 0 else (iz & 7) + 1
-                ex, ey, ez = tmx + (kx - 1) * tdx, tmy + (ky - 1) * tdy, tmz + (kz - 1) * tdz
-                if ex <= ey and ex <= ez:
-                    mx, my, mz = kx, _crossings(tmy, tdy, ex), _crossings(tmz, tdz, ex)
-                elif ey <= ez:
-                    mx, my, mz = _crossings(tmx, tdx, ey), ky, _crossings(tmz, tdz, ey)
-                else:
-                    mx, my, mz = _crossings(tmx, tdx, ez), _crossings(tmy, tdy, ez), kz
-                ix, iy, iz = ix + sx * mx, iy + sy * my, iz + sz * mz
-                tmx, tmy, tmz = tmx + mx * tdx, tmy + my * tdy, tmz + mz * tdz
-                n -= mx + my + mz
-                if (ix | iy | iz) < 0 or ix >= nx or iy >= ny or iz >= nz:
-                    break
-                continue
-        if not visited[w] & bit:
-            _atomic_or(visited, w, bit)
-            if dirty[block] == 0:
-                dirty[block] = 1
+    n = abs(jx - ix) + abs(jy - iy) + abs(jz - iz) + 1
+    sx, tmx, tdx = dda_axis(qx, -ux, voxel, jx)
+    sy, tmy, tdy = dda_axis(qy, -uy, voxel, jy)
+    sz, tmz, tdz = dda_axis(qz, -uz, voxel, jz)
+    ix, iy, iz = jx, jy, jz
+    run = 0
+    for k in range(n):
+        if k > 0 or not end_inside:
+            block, w, bit = _slot(ix, iy, iz, by, bz)
+            if not visited[w] & bit:
+                _atomic_or(visited, w, bit)
+                if dirty[block] == 0:
+                    dirty[block] = 1
+                run = 0
+            else:
+                run += 1
+                if run == patience:
+                    return
         # branch-free step along the axis of the nearest boundary: which axis it is follows
         # no pattern the branch predictor could learn
         cx = tmx <= tmy and tmx <= tmz
@@ -418,7 +311,6 @@ def _walk(visited, words, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_ra
         tmx = tmx + tdx if cx else tmx
         tmy = tmy + tdy if cy else tmy
         tmz = tmz + tdz if cz else tmz
-        n -= 1
         if (ix | iy | iz) < 0 or ix >= nx or iy >= ny or iz >= nz:
             break
 
@@ -476,13 +368,15 @@ def _unknown_on_rays(L, lo, voxel, origin, ends, box):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _free(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks):
+def _free(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks, patience):
     """Second pass: the rays in parallel chunks of neighbouring rays (which share voxels)."""
-    words = visited.view(np.int64)
     per = (rays.shape[0] + chunks - 1) // chunks
     for c in prange(chunks):
         for r in range(c * per, min(rays.shape[0], (c + 1) * per)):
-            _walk(visited, words, hit, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range)
+            _walk(
+                visited, hit, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range,
+                patience,
+            )  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
@@ -581,10 +475,15 @@ class OccupancyMap:
         self._hit = np.zeros(blocks * 64, np.uint8)
         self._dirty = np.zeros(blocks, np.uint8)
         self._rays = np.zeros((0, 3), np.float64)
+        self._ray_scratch = np.zeros((0, 3), np.float64)
         self._seen = np.full(SEEN_SLOTS, -1, np.int64)
-        cells = (int(2 * FILL_SPAN / FILL_CELL) + 1) ** 2
-        self._cnt = np.zeros(cells, np.int32)
-        self._emin = np.zeros(cells, np.float64)
+        v = self.config.voxel
+        ranges = [r for r in PASS_RANGES if 2 * PASS_SPAN * r / v <= 2048]  # cells ≤ 4 M a pass
+        self._deltas = np.array([v / r for r in ranges], np.float64)
+        widths = [math.ceil(2 * PASS_SPAN / d) + 1 for d in self._deltas]
+        self._grid_w = np.array(widths, np.int64)
+        self._grid_off = np.concatenate([[0], np.cumsum(np.square(widths))[:-1]]).astype(np.int64)
+        self._grids = np.zeros(int(np.square(widths).sum()), np.uint8)
         # the updates and their bounds in stored thousandths (``_apply``)
         c = self.config
         logits = (c.p_hit, c.p_miss, c.clamp_min, c.clamp_max)
@@ -631,26 +530,23 @@ class OccupancyMap:
         max_range = self.config.max_range if max_range is None else max_range
         if len(self._rays) < len(points):
             self._rays = np.empty((len(points), 3), np.float64)
+            self._ray_scratch = np.empty((len(points), 3), np.float64)
         nx, ny, nz = self.shape
         grid = (self._visited, self._hit, self._dirty, nx, ny, nz, self.lo, self.voxel, origin)
+        starts = np.zeros(len(self._deltas) + 2, np.int64)
         self._seen.fill(-1)
-        self._cnt.fill(0)
-        self._emin.fill(np.inf)
-        cells = (_basis(points, origin), FILL_SPAN, FILL_CELL, self._cnt, self._emin)
-        n = _hits(
-            *grid,
-            points,
-            max_range,
-            self.config.discretize,
-            self._seen,
-            *cells,
-            self._rays,
-            RANGE_MERGE,
-        )
-        if FILL_SPACING > 0:
-            _fill(*grid, max_range, *cells, FILL_SPACING)
-        chunks = max(1, min(numba.get_num_threads() * 32, n // 256 + 1))
-        _free(*grid, self._rays[:n], max_range, chunks)
+        self._grids.fill(0)
+        _hits(
+            *grid, points, max_range, self.config.discretize, self._seen,
+            _basis(points, origin), self._deltas, self._grids, self._grid_off, self._grid_w,
+            PASS_SPAN, self._ray_scratch, self._rays, starts,
+        )  # fmt: skip
+        threads = numba.get_num_threads()
+        for a, b in itertools.pairwise(starts):
+            if b > a:
+                chunks = max(1, min(threads * 32, (b - a) // 64 + 1))
+                # the first pass walks whole rays: nothing is cleared before it
+                _free(*grid, self._rays[a:b], max_range, chunks, PATIENCE if a else 0)
         blocks = np.flatnonzero(self._dirty)
         self._dirty[blocks] = 0
         count = _apply(self.L, self._visited, self._hit, blocks, *self._milli)
