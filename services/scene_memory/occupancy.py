@@ -80,6 +80,7 @@ SEEN_SLOTS = 1 << 16
 PASS_RANGES = (0.2, 0.4, 0.8, 1.6, 3.2)
 #: a ray stops once it crossed this many voxels in a row that earlier rays cleared (``_walk``)
 PATIENCE = 48
+PATIENCE_REST = 16
 #: the direction cells cover the directions within atan(PASS_SPAN) of the scan's mean one
 PASS_SPAN = 2.0
 #: what a snapshot leaves out
@@ -181,13 +182,18 @@ def _hits(
     count = np.zeros(levels, np.int64)
     level = np.empty(points.shape[0], np.int8)
     n = 0
+    last_x = last_y = last_z = -(1 << 40)
     for r in range(points.shape[0]):
         px, py, pz = points[r, 0], points[r, 1], points[r, 2]
         if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
             continue
         fx, fy, fz = (px - lo[0]) * inv, (py - lo[1]) * inv, (pz - lo[2]) * inv
         if discretize:
-            fx, fy, fz = math.floor(fx) + 0.5, math.floor(fy) + 0.5, math.floor(fz) + 0.5
+            cx, cy, cz = math.floor(fx), math.floor(fy), math.floor(fz)
+            if cx == last_x and cy == last_y and cz == last_z:
+                continue  # the previous point's voxel (neighbouring pixels): its ray is cast
+            last_x, last_y, last_z = cx, cy, cz
+            fx, fy, fz = cx + 0.5, cy + 0.5, cz + 0.5
             px, py, pz = lo[0] + fx * voxel, lo[1] + fy * voxel, lo[2] + fz * voxel
         dx, dy, dz = px - origin[0], py - origin[1], pz - origin[2]
         dist = math.sqrt(dx * dx + dy * dy + dz * dz)
@@ -542,11 +548,14 @@ class OccupancyMap:
             PASS_SPAN, self._ray_scratch, self._rays, starts,
         )  # fmt: skip
         threads = numba.get_num_threads()
-        for a, b in itertools.pairwise(starts):
+        last = len(starts) - 2
+        for k, (a, b) in enumerate(itertools.pairwise(starts)):
             if b > a:
                 chunks = max(1, min(threads * 32, (b - a) // 64 + 1))
-                # the first pass walks whole rays: nothing is cleared before it
-                _free(*grid, self._rays[a:b], max_range, chunks, PATIENCE if a else 0)
+                # the first pass walks whole rays: nothing is cleared before it; the last
+                # one's rays each run beside one cast already, a finest cell away
+                patience = 0 if k == 0 else PATIENCE_REST if k == last else PATIENCE
+                _free(*grid, self._rays[a:b], max_range, chunks, patience)
         blocks = np.flatnonzero(self._dirty)
         self._dirty[blocks] = 0
         count = _apply(self.L, self._visited, self._hit, blocks, *self._milli)
