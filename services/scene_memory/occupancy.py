@@ -89,6 +89,7 @@ SCRATCH = (
     "_hit",
     "_dirty",
     "_rays",
+    "_keys",
     "_ray_scratch",
     "_seen",
     "_deltas",
@@ -162,9 +163,35 @@ def _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span):
     return last
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def _cells(points, lo, voxel, keys):
+    """The voxel of every point as one key (``_key``; -1: a NaN or inf coordinate), in
+    parallel: the arithmetic of ``_hits`` that needs no order."""
+    inv = 1.0 / voxel
+    for r in prange(points.shape[0]):
+        px, py, pz = points[r, 0], points[r, 1], points[r, 2]
+        if math.isfinite(px) and math.isfinite(py) and math.isfinite(pz):
+            keys[r] = _key(
+                math.floor((px - lo[0]) * inv),
+                math.floor((py - lo[1]) * inv),
+                math.floor((pz - lo[2]) * inv),
+            )
+        else:
+            keys[r] = -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _key(cx, cy, cz):
+    """A voxel index (each within ±2^20, clamped) packed into one non-negative int64."""
+    kx = min(max(cx, -(1 << 20)), (1 << 20) - 1) + (1 << 20)
+    ky = min(max(cy, -(1 << 20)), (1 << 20) - 1) + (1 << 20)
+    kz = min(max(cz, -(1 << 20)), (1 << 20) - 1) + (1 << 20)
+    return (kx << 42) | (ky << 21) | kz
+
+
 @njit(cache=True, nogil=True)
 def _hits(
-    visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, max_range, discretize,
+    visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, keys, max_range, discretize,
     seen, basis, deltas, grids, grid_off, grid_w, span, scratch, rays, starts,
 ):  # fmt: skip
     """First pass, one thread: set the hit and visited bits of the voxel of every return
@@ -182,19 +209,22 @@ def _hits(
     count = np.zeros(levels, np.int64)
     level = np.empty(points.shape[0], np.int8)
     n = 0
-    last_x = last_y = last_z = -(1 << 40)
+    last = -2
     for r in range(points.shape[0]):
-        px, py, pz = points[r, 0], points[r, 1], points[r, 2]
-        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+        key = keys[r]  # the point's voxel (``_cells``)
+        if key == -1:
             continue
-        fx, fy, fz = (px - lo[0]) * inv, (py - lo[1]) * inv, (pz - lo[2]) * inv
         if discretize:
-            cx, cy, cz = math.floor(fx), math.floor(fy), math.floor(fz)
-            if cx == last_x and cy == last_y and cz == last_z:
+            if key == last:
                 continue  # the previous point's voxel (neighbouring pixels): its ray is cast
-            last_x, last_y, last_z = cx, cy, cz
-            fx, fy, fz = cx + 0.5, cy + 0.5, cz + 0.5
+            last = key
+            fx = ((key >> 42) - (1 << 20)) + 0.5
+            fy = (((key >> 21) & ((1 << 21) - 1)) - (1 << 20)) + 0.5
+            fz = ((key & ((1 << 21) - 1)) - (1 << 20)) + 0.5
             px, py, pz = lo[0] + fx * voxel, lo[1] + fy * voxel, lo[2] + fz * voxel
+        else:
+            px, py, pz = points[r, 0], points[r, 1], points[r, 2]
+            fx, fy, fz = (px - lo[0]) * inv, (py - lo[1]) * inv, (pz - lo[2]) * inv
         dx, dy, dz = px - origin[0], py - origin[1], pz - origin[2]
         dist = math.sqrt(dx * dx + dy * dy + dz * dz)
         inside = 0 <= fx < nx and 0 <= fy < ny and 0 <= fz < nz
@@ -208,10 +238,6 @@ def _hits(
                 visited[w] |= bit
                 dirty[block] = 1
         elif discretize:
-            kx = min(max(math.floor(fx), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
-            ky = min(max(math.floor(fy), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
-            kz = min(max(math.floor(fz), -(1 << 20)), (1 << 20) - 1) + (1 << 20)
-            key = (kx << 42) | (ky << 21) | kz
             slot = ((key * 0x9E3779B97F4A7C1) >> 20) & mask
             if seen[slot] == key:
                 continue
@@ -481,6 +507,7 @@ class OccupancyMap:
         self._hit = np.zeros(blocks * 64, np.uint8)
         self._dirty = np.zeros(blocks, np.uint8)
         self._rays = np.zeros((0, 3), np.float64)
+        self._keys = np.zeros(0, np.int64)
         self._ray_scratch = np.zeros((0, 3), np.float64)
         self._seen = np.full(SEEN_SLOTS, -1, np.int64)
         v = self.config.voxel
@@ -542,8 +569,12 @@ class OccupancyMap:
         starts = np.zeros(len(self._deltas) + 2, np.int64)
         self._seen.fill(-1)
         self._grids.fill(0)
+        if len(self._keys) < len(points):
+            self._keys = np.empty(len(points), np.int64)
+        keys = self._keys[: len(points)]
+        _cells(points, self.lo, self.voxel, keys)
         _hits(
-            *grid, points, max_range, self.config.discretize, self._seen,
+            *grid, points, keys, max_range, self.config.discretize, self._seen,
             _basis(points, origin), self._deltas, self._grids, self._grid_off, self._grid_w,
             PASS_SPAN, self._ray_scratch, self._rays, starts,
         )  # fmt: skip
