@@ -81,12 +81,14 @@ PASS_RANGES = (0.2, 0.4, 0.8, 1.6, 3.2)
 #: a ray stops once it crossed this many voxels in a row that earlier rays cleared (``_walk``)
 PATIENCE = 48
 PATIENCE_REST = 16
+SUBPASSES = 4
 #: the direction cells cover the directions within atan(PASS_SPAN) of the scan's mean one
 PASS_SPAN = 2.0
 #: what a snapshot leaves out
 SCRATCH = (
     "_visited",
     "_hit",
+    "_cleared",
     "_dirty",
     "_rays",
     "_keys",
@@ -269,13 +271,14 @@ def _start(o, u, lo, n, voxel):
 
 
 @njit(cache=True, nogil=True)
-def _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range, patience):
+def _walk(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, end, max_range, patience):
     """One ray (3D DDA, Amanatides & Woo), walked from its end back to the sensor: sets the
     visited bit of every voxel on the way from the sensor to a return, or to the cut at
     ``max_range``, excluding the end's own voxel (OctoMap's ``computeRayKeys``), and stops
-    early once ``patience`` voxels in a row were visited already (0: never): the ray has
-    joined space that the rays cast before it (the coarser passes', ``_level``) cleared,
-    which it would only cross again.
+    early once ``patience`` voxels in a row were ``cleared`` already (0: never): the ray has
+    joined space that the coarser passes (``_level``) cleared, which it would only cross
+    again. ``cleared`` is the visited set as the pass began, so that where a ray stops does
+    not depend on which rays of its own pass the other threads walked first.
     Threads share the bit set: the first visit sets the bit atomically, later ones only read.
     Scalars only: no array is allocated per ray."""
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
@@ -327,11 +330,12 @@ def _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range, pa
                 _atomic_or(visited, w, bit)
                 if dirty[block] == 0:
                     dirty[block] = 1
-                run = 0
-            else:
+            if cleared[w] & bit:
                 run += 1
                 if run == patience:
                     return
+            else:
+                run = 0
         # branch-free step along the axis of the nearest boundary: which axis it is follows
         # no pattern the branch predictor could learn
         cx = tmx <= tmy and tmx <= tmz
@@ -400,19 +404,31 @@ def _unknown_on_rays(L, lo, voxel, origin, ends, box):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _free(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks, patience):
+def _free(
+    visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks, patience
+):
     """Second pass: the rays in parallel chunks of neighbouring rays (which share voxels)."""
     per = (rays.shape[0] + chunks - 1) // chunks
     for c in prange(chunks):
         for r in range(c * per, min(rays.shape[0], (c + 1) * per)):
             _walk(
-                visited, hit, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range,
+                visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range,
                 patience,
             )  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
-def _apply_block(L, visited, hit, block, by, bz, d_hit, d_miss, d_min, d_max):
+def _snapshot(visited, cleared, dirty):
+    """``cleared`` = ``visited`` in the dirty blocks (elsewhere both are clear)."""
+    a, b = visited.view(np.int64), cleared.view(np.int64)
+    for block in range(dirty.shape[0]):
+        if dirty[block]:
+            for j in range(block << 3, (block + 1) << 3):
+                b[j] = a[j]
+
+
+@njit(cache=True, nogil=True)
+def _apply_block(L, visited, hit, cleared, block, by, bz, d_hit, d_miss, d_min, d_max):
     """Update the visited voxels of one 8×8×8 block and clear their bits. In thousandths:
     the rounding of (old / 1000 + l) · 1000 is old + round(1000 · l), old being whole."""
     x0 = (block // (by * bz)) << 3
@@ -427,6 +443,7 @@ def _apply_block(L, visited, hit, block, by, bz, d_hit, d_miss, d_min, d_max):
         hits = hit[w]
         visited[w] = 0
         hit[w] = 0
+        cleared[w] = 0
         ix = x0 | (j >> 3)
         iy = y0 | (j & 7)
         for b in range(8):
@@ -439,14 +456,16 @@ def _apply_block(L, visited, hit, block, by, bz, d_hit, d_miss, d_min, d_max):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _apply(L, visited, hit, blocks, d_hit, d_miss, d_min, d_max):
+def _apply(L, visited, hit, cleared, blocks, d_hit, d_miss, d_min, d_max):
     """Update every visited voxel of the dirty ``blocks`` once (hit: d_hit, else d_miss, in
     thousandths, clamped to [d_min, d_max]) and clear its bits; blocks in parallel, they
     share no voxel. Returns the count."""
     by, bz = (L.shape[1] + 7) >> 3, (L.shape[2] + 7) >> 3
     counts = np.zeros(blocks.shape[0], np.int64)
     for k in prange(blocks.shape[0]):
-        counts[k] = _apply_block(L, visited, hit, blocks[k], by, bz, d_hit, d_miss, d_min, d_max)
+        counts[k] = _apply_block(
+            L, visited, hit, cleared, blocks[k], by, bz, d_hit, d_miss, d_min, d_max
+        )
     return counts.sum()
 
 
@@ -505,6 +524,7 @@ class OccupancyMap:
         blocks = math.prod((n + 7) // 8 for n in self.shape)
         self._visited = np.zeros(blocks * 64, np.uint8)
         self._hit = np.zeros(blocks * 64, np.uint8)
+        self._cleared = np.zeros(blocks * 64, np.uint8)
         self._dirty = np.zeros(blocks, np.uint8)
         self._rays = np.zeros((0, 3), np.float64)
         self._keys = np.zeros(0, np.int64)
@@ -586,10 +606,19 @@ class OccupancyMap:
                 # the first pass walks whole rays: nothing is cleared before it; the last
                 # one's rays each run beside one cast already, a finest cell away
                 patience = 0 if k == 0 else PATIENCE_REST if k == last else PATIENCE
-                _free(*grid, self._rays[a:b], max_range, chunks, patience)
+                walk = (self._visited, self._cleared, *grid[2:])
+                # in rounds (every SUBPASSES-th ray), each stopping on what the ones before
+                # it cleared
+                for i in range(SUBPASSES if patience else 1):
+                    if patience:
+                        _snapshot(self._visited, self._cleared, self._dirty)
+                    step = SUBPASSES if patience else 1
+                    rays = self._rays[a + i : b : step]
+                    chunks = max(1, min(threads * 32, len(rays) // 64 + 1))
+                    _free(*walk, rays, max_range, chunks, patience)
         blocks = np.flatnonzero(self._dirty)
         self._dirty[blocks] = 0
-        count = _apply(self.L, self._visited, self._hit, blocks, *self._milli)
+        count = _apply(self.L, self._visited, self._hit, self._cleared, blocks, *self._milli)
         self.frames += 1
         self.version += 1
         return int(count)
