@@ -82,6 +82,8 @@ PASS_RANGES = (0.2, 0.4, 0.8, 1.6, 3.2)
 PATIENCE = 48
 PATIENCE_REST = 16
 SUBPASSES = 4
+#: fewer rays than this are one round, walked on the calling thread
+SMALL_PASS = 1024
 #: the direction cells cover the directions within atan(PASS_SPAN) of the scan's mean one
 PASS_SPAN = 2.0
 #: what a snapshot leaves out
@@ -418,6 +420,13 @@ def _free(
 
 
 @njit(cache=True, nogil=True)
+def _free_serial(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, patience):
+    """``_free`` on the calling thread."""
+    for r in range(rays.shape[0]):
+        _walk(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range, patience)
+
+
+@njit(cache=True, nogil=True)
 def _snapshot(visited, cleared, dirty):
     """``cleared`` = ``visited`` in the dirty blocks (elsewhere both are clear)."""
     a, b = visited.view(np.int64), cleared.view(np.int64)
@@ -602,20 +611,22 @@ class OccupancyMap:
         last = len(starts) - 2
         for k, (a, b) in enumerate(itertools.pairwise(starts)):
             if b > a:
-                chunks = max(1, min(threads * 32, (b - a) // 64 + 1))
                 # the first pass walks whole rays: nothing is cleared before it; the last
                 # one's rays each run beside one cast already, a finest cell away
                 patience = 0 if k == 0 else PATIENCE_REST if k == last else PATIENCE
                 walk = (self._visited, self._cleared, *grid[2:])
                 # in rounds (every SUBPASSES-th ray), each stopping on what the ones before
-                # it cleared
-                for i in range(SUBPASSES if patience else 1):
+                # it cleared; a small pass at once and on this thread (no wake-ups)
+                step = SUBPASSES if patience and b - a >= SUBPASSES * SMALL_PASS else 1
+                for i in range(step):
                     if patience:
                         _snapshot(self._visited, self._cleared, self._dirty)
-                    step = SUBPASSES if patience else 1
                     rays = self._rays[a + i : b : step]
-                    chunks = max(1, min(threads * 32, len(rays) // 64 + 1))
-                    _free(*walk, rays, max_range, chunks, patience)
+                    if len(rays) < SMALL_PASS:
+                        _free_serial(*walk, rays, max_range, patience)
+                    else:
+                        chunks = max(1, min(threads * 32, len(rays) // 64 + 1))
+                        _free(*walk, rays, max_range, chunks, patience)
         blocks = np.flatnonzero(self._dirty)
         self._dirty[blocks] = 0
         count = _apply(self.L, self._visited, self._hit, self._cleared, blocks, *self._milli)
