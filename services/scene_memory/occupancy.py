@@ -81,9 +81,9 @@ PASS_RANGES = (0.2, 0.4, 0.8, 1.6, 3.2)
 #: a ray stops once it crossed this many voxels in a row that earlier rays cleared (``_walk``)
 PATIENCE = 48
 PATIENCE_REST = 16
-SUBPASSES = 4
+SUBPASSES = 2
 #: fewer rays than this are one round, walked on the calling thread
-SMALL_PASS = 1024
+SMALL_PASS = 2048
 #: the direction cells cover the directions within atan(PASS_SPAN) of the scan's mean one
 PASS_SPAN = 2.0
 #: what a snapshot leaves out
