@@ -81,8 +81,11 @@ PASS_RANGES = (0.2, 0.4, 0.8, 1.6, 3.2)
 #: a ray stops once it crossed this many voxels in a row that earlier rays cleared (``_walk``)
 PATIENCE = 48
 PATIENCE_REST = 16
+#: a pass is cast in this many rounds (every SUBPASSES-th ray), each stopping on the voxels the
+#: rounds before it cleared, so that where a ray stops does not depend on thread timing
 SUBPASSES = 2
-#: fewer rays than this are one round, walked on the calling thread
+#: a pass of fewer than SUBPASSES × SMALL_PASS rays is one round; fewer than SMALL_PASS rays
+#: are walked on the calling thread (no thread wake-ups)
 SMALL_PASS = 2048
 #: the direction cells cover the directions within atan(PASS_SPAN) of the scan's mean one
 PASS_SPAN = 2.0
