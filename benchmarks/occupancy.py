@@ -4,10 +4,11 @@ the BBX set to our map's bounds), the same maximum range (3 m), the same resolut
 discretizing the end points (OctoMap's ``discretize``), the same input points. Two frames:
 tabletop_clutter's start view at 1 cm and 2 cm (the map: the roi grown by 1 m, floor to 2 m),
 and kitchen's start view at 1 cm (the map the live stack gives the kitchen, avs/bounds.py:
-long rays, many past the 3 m range, to the far walls). Each side runs once untimed, then
-``--repeats`` times; medians. Then the unknown / free / occupied voxels of the map's box are
-counted in both maps and compared, and in ours with every ray walked whole (what our early stop
-of the rays in cleared space changes).
+long rays, many past the 3 m range, to the far walls). Each side integrates the frame into
+one map / tree once untimed (warm), then ``--repeats`` / ``--octomap-repeats`` times more;
+medians. Then the unknown / free / occupied voxels of the map's box are counted in both maps
+and compared, and in ours with every ray walked whole (what our early stop of the rays in
+cleared space changes).
 
 Last line: integrate_ms_1cm=<table-top> integrate_ms_2cm=<table-top>
 integrate_ms_kitchen_1cm=<kitchen> speedup_vs_octomap_bbx=<table-top, 1 cm>
@@ -97,10 +98,11 @@ def every_ray(points, origin, lo, hi, voxel) -> tuple[int, int, int]:
 
 
 def ours(points, origin, lo, hi, voxel, repeats) -> tuple[float, tuple[int, int, int]]:
-    """Median ms of ``integrate`` into a new map (one untimed run first), and the counts."""
+    """Median ms of ``integrate`` of the frame into one map, after an untimed one (warm: the
+    map's buffers touched, as the scene memory's are from frame to frame), and the counts."""
+    m = OccupancyMap(lo, hi, OccupancyConfig(voxel=voxel, max_range=MAX_RANGE))
     times = []
     for i in range(repeats + 1):
-        m = OccupancyMap(lo, hi, OccupancyConfig(voxel=voxel, max_range=MAX_RANGE))
         t0 = time.perf_counter()
         m.integrate(points, origin)
         if i:
@@ -119,16 +121,16 @@ def bounded_tree(lo, hi, voxel):
 
 
 def octomap(points, origin, lo, hi, voxel, repeats) -> tuple[float, float, tuple[int, int, int]]:
-    """Median ms of pyoctomap's ``insertPointCloud`` into a new bounded tree (one untimed run
-    first), the median ms of the binding's own Python-level discretize in it (a set of key
-    tuples, before the C++ call), and the counts."""
+    """Median ms of pyoctomap's ``insertPointCloud`` of the frame into one bounded tree, after
+    an untimed one (warm, as ours), the median ms of the binding's own Python-level discretize
+    in it (a set of key tuples, before the C++ call), and the counts."""
+    tree = bounded_tree(lo, hi, voxel)
     times, binding = [], []
     for i in range(repeats + 1):
-        tree = bounded_tree(lo, hi, voxel)
         t0 = time.perf_counter()
         tree.insertPointCloud(points, origin, MAX_RANGE, False, True)
         t1 = time.perf_counter()
-        bounded_tree(lo, hi, voxel)._discretizePointCloud(points)
+        tree._discretizePointCloud(points)
         t2 = time.perf_counter()
         if i:
             times.append((t1 - t0) * 1e3)
