@@ -15,6 +15,7 @@ dense array: 4 m × 4 m × 2 m at 1 cm is 32 M voxels, 64 MB.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -45,15 +46,65 @@ def depth_points(
 ) -> np.ndarray:
     """World points (n, 3) of every ``every``-th pixel (row-major) of a depth image with a
     return in (depth_min, depth_max] (0 / NaN: none). ``intrinsics``: fx, fy, cx, cy."""
-    fx, fy, cx, cy = intrinsics
-    z = np.asarray(depth, np.float64)
-    v, u = np.divmod(np.arange(0, z.size, every), z.shape[1])
-    d = z.ravel()[::every]
-    ok = np.isfinite(d) & (d > depth_min) & (d <= depth_max)
-    d, u, v = d[ok], u[ok], v[ok]
-    cam = np.column_stack([(u - cx) / fx * d, (v - cy) / fy * d, d])
-    return cam @ T_world_camera[:3, :3].T + T_world_camera[:3, 3]
+    z = np.ascontiguousarray(depth)
+    if z.dtype not in (np.float32, np.float64):
+        z = z.astype(np.float64)
+    T = np.ascontiguousarray(T_world_camera, np.float64)
+    fx, fy, cx, cy = (float(k) for k in intrinsics)
+    return _depth_points(z, fx, fy, cx, cy, T, float(depth_min), float(depth_max), int(every))
 
+
+@njit(cache=True, nogil=True)
+def _depth_points(z, fx, fy, cx, cy, T, depth_min, depth_max, every):
+    w = z.shape[1]
+    flat = z.ravel()
+    out = np.empty(((flat.size + every - 1) // every, 3), np.float64)
+    n = 0
+    for i in range(0, flat.size, every):
+        d = np.float64(flat[i])
+        if not (math.isfinite(d) and depth_min < d <= depth_max):
+            continue
+        v, u = divmod(i, w)
+        x, y = (u - cx) / fx * d, (v - cy) / fy * d
+        for a in range(3):
+            out[n, a] = T[a, 0] * x + T[a, 1] * y + T[a, 2] * d + T[a, 3]
+        n += 1
+    return out[:n]
+
+
+#: the cache of end voxels outside the map or beyond range, merged as OctoMap's discretize does
+SEEN_SLOTS = 1 << 16
+#: rays are cast in passes, coarse to fine: a pass per range here, whose rays are spaced about a
+#: voxel apart at that range (one ray per direction cell of voxel / range), then the rest;
+#: the blocks the coarse passes fill near the sensor the later rays cross in one step each
+PASS_RANGES = (0.2, 0.4, 0.8, 1.6, 3.2)
+#: a ray stops once it crossed this many voxels in a row that earlier rays cleared (``_walk``)
+PATIENCE = 48
+PATIENCE_REST = 16
+#: a pass is cast in this many rounds (every SUBPASSES-th ray), each stopping on the voxels the
+#: rounds before it cleared, so that where a ray stops does not depend on thread timing
+SUBPASSES = 2
+#: a pass of fewer than SUBPASSES × SMALL_PASS rays is one round; fewer than SMALL_PASS rays
+#: are walked on the calling thread (no thread wake-ups)
+SMALL_PASS = 2048
+#: the direction cells cover the directions within atan(PASS_SPAN) of the scan's mean one
+PASS_SPAN = 2.0
+#: what a snapshot leaves out
+SCRATCH = (
+    "_visited",
+    "_hit",
+    "_cleared",
+    "_dirty",
+    "_rays",
+    "_keys",
+    "_ray_scratch",
+    "_seen",
+    "_deltas",
+    "_grid_w",
+    "_grid_off",
+    "_grids",
+    "_milli",
+)
 
 #: voxels per slice when a snapshot packs the map's known-voxel mask (a multiple of 8)
 SNAPSHOT_SLICE = 1 << 23
@@ -97,21 +148,90 @@ def _slot(ix, iy, iz, by, bz):
     return block, (block << 6) | ((ix & 7) << 3) | (iy & 7), np.uint8(1 << (iz & 7))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span):
+    """The pass of the ray along (dx, dy, dz): the coarsest level whose direction cell (a
+    square of ``deltas[level]`` on the plane z = 1 of ``basis``) no ray claimed yet, or the
+    last pass. Each pass then holds about one ray per cell: the coarse passes fill the space
+    near the sensor, which the rays of the later passes cross block by block."""
+    last = deltas.shape[0]
+    c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
+    if c <= 0.25 * dist:
+        return last
+    u = (dx * basis[1, 0] + dy * basis[1, 1] + dz * basis[1, 2]) / c + span
+    v = (dx * basis[2, 0] + dy * basis[2, 1] + dz * basis[2, 2]) / c + span
+    if not (0.0 <= u < 2 * span and 0.0 <= v < 2 * span):
+        return last
+    for k in range(last):
+        cell = grid_off[k] + int(u / deltas[k]) * grid_w[k] + int(v / deltas[k])
+        if grids[cell] == 0:
+            grids[cell] = 1
+            return k
+    return last
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _cells(points, lo, voxel, keys):
+    """The voxel of every point as one key (``_key``; -1: a NaN or inf coordinate), in
+    parallel: the arithmetic of ``_hits`` that needs no order."""
+    inv = 1.0 / voxel
+    for r in prange(points.shape[0]):
+        px, py, pz = points[r, 0], points[r, 1], points[r, 2]
+        if math.isfinite(px) and math.isfinite(py) and math.isfinite(pz):
+            keys[r] = _key(
+                math.floor((px - lo[0]) * inv),
+                math.floor((py - lo[1]) * inv),
+                math.floor((pz - lo[2]) * inv),
+            )
+        else:
+            keys[r] = -1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _key(cx, cy, cz):
+    """A voxel index (each within ±2^20, clamped) packed into one non-negative int64."""
+    kx = min(max(cx, -(1 << 20)), (1 << 20) - 1) + (1 << 20)
+    ky = min(max(cy, -(1 << 20)), (1 << 20) - 1) + (1 << 20)
+    kz = min(max(cz, -(1 << 20)), (1 << 20) - 1) + (1 << 20)
+    return (kx << 42) | (ky << 21) | kz
+
+
 @njit(cache=True, nogil=True)
-def _hits(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, max_range, discretize, rays):
+def _hits(
+    visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, keys, max_range, discretize,
+    seen, basis, deltas, grids, grid_off, grid_w, span, scratch, rays, starts,
+):  # fmt: skip
     """First pass, one thread: set the hit and visited bits of the voxel of every return
-    within range inside the map. Returns the number of rays to cast, written to ``rays``:
-    with ``discretize`` every point is first moved to the centre of its voxel (OctoMap's
-    ``discretize``) and one ray is cast per hit voxel; otherwise one ray per point."""
+    within range inside the map, and list the rays to cast in ``rays``, pass by pass (ray
+    ``i`` of pass ``k`` at ``starts[k] + i``; ``starts`` gets the passes' bounds; see
+    ``_level``); returns their number. With ``discretize`` every point is first moved to the
+    centre of its voxel and one ray is cast per voxel (OctoMap's ``discretize``, which merges
+    the points beyond range and outside the map too: those through ``seen``, a direct-mapped
+    cache of voxel keys, which may let a repeat through, never drop a new one); otherwise one
+    ray per point. Points with a NaN or inf coordinate are skipped."""
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
     inv = 1.0 / voxel
+    mask = seen.shape[0] - 1
+    levels = deltas.shape[0] + 1
+    count = np.zeros(levels, np.int64)
+    level = np.empty(points.shape[0], np.int8)
     n = 0
+    last = -2
     for r in range(points.shape[0]):
-        px, py, pz = points[r, 0], points[r, 1], points[r, 2]
-        fx, fy, fz = (px - lo[0]) * inv, (py - lo[1]) * inv, (pz - lo[2]) * inv
+        key = keys[r]  # the point's voxel (``_cells``)
+        if key == -1:
+            continue
         if discretize:
-            fx, fy, fz = math.floor(fx) + 0.5, math.floor(fy) + 0.5, math.floor(fz) + 0.5
+            if key == last:
+                continue  # the previous point's voxel (neighbouring pixels): its ray is cast
+            last = key
+            fx = ((key >> 42) - (1 << 20)) + 0.5
+            fy = (((key >> 21) & ((1 << 21) - 1)) - (1 << 20)) + 0.5
+            fz = ((key & ((1 << 21) - 1)) - (1 << 20)) + 0.5
             px, py, pz = lo[0] + fx * voxel, lo[1] + fy * voxel, lo[2] + fz * voxel
+        else:
+            px, py, pz = points[r, 0], points[r, 1], points[r, 2]
+            fx, fy, fz = (px - lo[0]) * inv, (py - lo[1]) * inv, (pz - lo[2]) * inv
         dx, dy, dz = px - origin[0], py - origin[1], pz - origin[2]
         dist = math.sqrt(dx * dx + dy * dy + dz * dz)
         inside = 0 <= fx < nx and 0 <= fy < ny and 0 <= fz < nz
@@ -124,8 +244,24 @@ def _hits(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, max_range,
                 hit[w] |= bit
                 visited[w] |= bit
                 dirty[block] = 1
-        rays[n, 0], rays[n, 1], rays[n, 2] = px, py, pz
+        elif discretize:
+            slot = ((key * 0x9E3779B97F4A7C1) >> 20) & mask
+            if seen[slot] == key:
+                continue
+            seen[slot] = key
+        k = _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span)
+        level[n] = k
+        count[k] += 1
+        scratch[n, 0], scratch[n, 1], scratch[n, 2] = px, py, pz
         n += 1
+    starts[0] = 0
+    for k in range(levels):
+        starts[k + 1] = starts[k] + count[k]
+    at = starts[:levels].copy()
+    for i in range(n):
+        j = at[level[i]]
+        at[level[i]] = j + 1
+        rays[j, 0], rays[j, 1], rays[j, 2] = scratch[i, 0], scratch[i, 1], scratch[i, 2]
     return n
 
 
@@ -140,10 +276,14 @@ def _start(o, u, lo, n, voxel):
 
 
 @njit(cache=True, nogil=True)
-def _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range):
-    """One ray (3D DDA, Amanatides & Woo): sets the visited bit of every voxel on the way
-    to a return, or to the cut at ``max_range``, excluding the end's own voxel (OctoMap's
-    ``computeRayKeys``).
+def _walk(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, end, max_range, patience):
+    """One ray (3D DDA, Amanatides & Woo), walked from its end back to the sensor: sets the
+    visited bit of every voxel on the way from the sensor to a return, or to the cut at
+    ``max_range``, excluding the end's own voxel (OctoMap's ``computeRayKeys``), and stops
+    early once ``patience`` voxels in a row were ``cleared`` already (0: never): the ray has
+    joined space that the coarser passes (``_level``) cleared, which it would only cross
+    again. ``cleared`` is the visited set as the pass began, so that where a ray stops does
+    not depend on which rays of its own pass the other threads walked first.
     Threads share the bit set: the first visit sets the bit atomically, later ones only read.
     Scalars only: no array is allocated per ray."""
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
@@ -164,8 +304,8 @@ def _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range):
     # the ray's end (a return, or the cut at max range) lies in the map: its voxel is not free
     end_inside = t1 >= length - 1e-9
     inv = 1.0 / voxel
-    # the voxels of the clipped segment: from the one at t0 to the one at t1, which is the hit
-    # voxel (excluded) when the ray ends inside the map
+    # the voxels of the clipped segment: from the one at t1 (the end's, skipped when the ray
+    # ends inside the map) back to the one at t0
     px, py, pz = (
         ox - lo[0] + ux * (t0 + 1e-9),
         oy - lo[1] + uy * (t0 + 1e-9),
@@ -182,16 +322,25 @@ def _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, end, max_range):
     jx = min(max(int(qx * inv), 0), nx - 1)
     jy = min(max(int(qy * inv), 0), ny - 1)
     jz = min(max(int(qz * inv), 0), nz - 1)
-    n = abs(jx - ix) + abs(jy - iy) + abs(jz - iz) + (0 if end_inside else 1)
-    sx, tmx, tdx = dda_axis(px, ux, voxel, ix)
-    sy, tmy, tdy = dda_axis(py, uy, voxel, iy)
-    sz, tmz, tdz = dda_axis(pz, uz, voxel, iz)
-    for _ in range(n):
-        block, w, bit = _slot(ix, iy, iz, by, bz)
-        if not visited[w] & bit:
-            _atomic_or(visited, w, bit)
-            if dirty[block] == 0:
-                dirty[block] = 1
+    n = abs(jx - ix) + abs(jy - iy) + abs(jz - iz) + 1
+    sx, tmx, tdx = dda_axis(qx, -ux, voxel, jx)
+    sy, tmy, tdy = dda_axis(qy, -uy, voxel, jy)
+    sz, tmz, tdz = dda_axis(qz, -uz, voxel, jz)
+    ix, iy, iz = jx, jy, jz
+    run = 0
+    for k in range(n):
+        if k > 0 or not end_inside:
+            block, w, bit = _slot(ix, iy, iz, by, bz)
+            if not visited[w] & bit:
+                _atomic_or(visited, w, bit)
+                if dirty[block] == 0:
+                    dirty[block] = 1
+            if cleared[w] & bit:
+                run += 1
+                if run == patience:
+                    return
+            else:
+                run = 0
         # branch-free step along the axis of the nearest boundary: which axis it is follows
         # no pattern the branch predictor could learn
         cx = tmx <= tmy and tmx <= tmz
@@ -260,17 +409,40 @@ def _unknown_on_rays(L, lo, voxel, origin, ends, box):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _free(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks):
+def _free(
+    visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks, patience
+):
     """Second pass: the rays in parallel chunks of neighbouring rays (which share voxels)."""
     per = (rays.shape[0] + chunks - 1) // chunks
     for c in prange(chunks):
         for r in range(c * per, min(rays.shape[0], (c + 1) * per)):
-            _walk(visited, hit, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range)
+            _walk(
+                visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range,
+                patience,
+            )  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
-def _apply_block(L, visited, hit, block, by, bz, l_hit, l_miss, l_min, l_max):
-    """Update the visited voxels of one 8×8×8 block and clear their bits."""
+def _free_serial(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, patience):
+    """``_free`` on the calling thread."""
+    for r in range(rays.shape[0]):
+        _walk(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range, patience)
+
+
+@njit(cache=True, nogil=True)
+def _snapshot(visited, cleared, dirty):
+    """``cleared`` = ``visited`` in the dirty blocks (elsewhere both are clear)."""
+    a, b = visited.view(np.int64), cleared.view(np.int64)
+    for block in range(dirty.shape[0]):
+        if dirty[block]:
+            for j in range(block << 3, (block + 1) << 3):
+                b[j] = a[j]
+
+
+@njit(cache=True, nogil=True)
+def _apply_block(L, visited, hit, cleared, block, by, bz, d_hit, d_miss, d_min, d_max):
+    """Update the visited voxels of one 8×8×8 block and clear their bits. In thousandths:
+    the rounding of (old / 1000 + l) · 1000 is old + round(1000 · l), old being whole."""
     x0 = (block // (by * bz)) << 3
     y0 = ((block // bz) % by) << 3
     z0 = (block % bz) << 3
@@ -283,27 +455,29 @@ def _apply_block(L, visited, hit, block, by, bz, l_hit, l_miss, l_min, l_max):
         hits = hit[w]
         visited[w] = 0
         hit[w] = 0
+        cleared[w] = 0
         ix = x0 | (j >> 3)
         iy = y0 | (j & 7)
         for b in range(8):
             if (seen >> b) & 1:
-                old = L[ix, iy, z0 | b]
-                value = 0.0 if old == -32768 else old / 1000.0
-                value += l_hit if (hits >> b) & 1 else l_miss
-                value = min(max(value, l_min), l_max)
-                L[ix, iy, z0 | b] = np.int16(round(value * 1000.0))
+                old = np.int32(L[ix, iy, z0 | b])
+                value = (0 if old == -32768 else old) + (d_hit if (hits >> b) & 1 else d_miss)
+                L[ix, iy, z0 | b] = np.int16(min(max(value, d_min), d_max))
                 n += 1
     return n
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _apply(L, visited, hit, blocks, l_hit, l_miss, l_min, l_max):
-    """Update every visited voxel of the dirty ``blocks`` once (hit: l_hit, else l_miss,
-    clamped) and clear its bits; blocks in parallel, they share no voxel. Returns the count."""
+def _apply(L, visited, hit, cleared, blocks, d_hit, d_miss, d_min, d_max):
+    """Update every visited voxel of the dirty ``blocks`` once (hit: d_hit, else d_miss, in
+    thousandths, clamped to [d_min, d_max]) and clear its bits; blocks in parallel, they
+    share no voxel. Returns the count."""
     by, bz = (L.shape[1] + 7) >> 3, (L.shape[2] + 7) >> 3
     counts = np.zeros(blocks.shape[0], np.int64)
     for k in prange(blocks.shape[0]):
-        counts[k] = _apply_block(L, visited, hit, blocks[k], by, bz, l_hit, l_miss, l_min, l_max)
+        counts[k] = _apply_block(
+            L, visited, hit, cleared, blocks[k], by, bz, d_hit, d_miss, d_min, d_max
+        )
     return counts.sum()
 
 
@@ -321,6 +495,20 @@ def _count(L, x0, y0, z0, x1, y1, z1, thresh_milli):
                 else:
                     free += 1
     return unknown, free, occupied
+
+
+def _basis(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """Rows: the scan's mean direction (of a sample of its points) and two axes across it."""
+    d = points[:: max(1, len(points) // 2000)] - origin
+    d = d[np.all(np.isfinite(d), axis=1)]
+    norms = np.linalg.norm(d, axis=1)
+    mean = (d[norms > 1e-9] / norms[norms > 1e-9, None]).sum(axis=0)
+    if not np.linalg.norm(mean) > 1e-9:
+        mean = np.array([1.0, 0.0, 0.0])
+    e0 = mean / np.linalg.norm(mean)
+    e1 = np.cross(e0, [0.0, 0.0, 1.0] if abs(e0[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return np.array([e0, e1, np.cross(e0, e1)])
 
 
 class OccupancyMap:
@@ -342,19 +530,35 @@ class OccupancyMap:
         self.version = 0
 
     def _scratch(self) -> None:
-        """The bit sets of one scan (visited, hit) and a dirty flag per 8×8×8 block; all zero
-        between scans."""
+        """The bit sets of one scan (visited, hit) and a dirty flag per 8×8×8 block, all zero
+        between scans; the rays' buffers, the cache of the end voxels outside the map and the
+        direction cells of the passes (``_level``)."""
         blocks = math.prod((n + 7) // 8 for n in self.shape)
         self._visited = np.zeros(blocks * 64, np.uint8)
         self._hit = np.zeros(blocks * 64, np.uint8)
+        self._cleared = np.zeros(blocks * 64, np.uint8)
         self._dirty = np.zeros(blocks, np.uint8)
         self._rays = np.zeros((0, 3), np.float64)
+        self._keys = np.zeros(0, np.int64)
+        self._ray_scratch = np.zeros((0, 3), np.float64)
+        self._seen = np.full(SEEN_SLOTS, -1, np.int64)
+        v = self.config.voxel
+        ranges = [r for r in PASS_RANGES if 2 * PASS_SPAN * r / v <= 2048]  # cells ≤ 4 M a pass
+        self._deltas = np.array([v / r for r in ranges], np.float64)
+        widths = [math.ceil(2 * PASS_SPAN / d) + 1 for d in self._deltas]
+        self._grid_w = np.array(widths, np.int64)
+        self._grid_off = np.concatenate([[0], np.cumsum(np.square(widths))[:-1]]).astype(np.int64)
+        self._grids = np.zeros(int(np.square(widths).sum()), np.uint8)
+        # the updates and their bounds in stored thousandths (``_apply``)
+        c = self.config
+        logits = (c.p_hit, c.p_miss, c.clamp_min, c.clamp_max)
+        self._milli = tuple(round(logit(p) * SCALE) for p in logits)
 
     def __getstate__(self) -> dict:
         """Snapshots hold the known voxels only (a bit mask and their values) and no scratch:
         a 56 M-voxel map that has seen a few views pickles to a fraction of its 112 MB."""
         state = dict(self.__dict__)
-        for k in ("_visited", "_hit", "_dirty", "_rays"):
+        for k in SCRATCH:
             state.pop(k)
         flat = state.pop("L").reshape(-1)
         # in slices of 8 M voxels (a multiple of 8: the bits pack as if in one piece): the
@@ -385,30 +589,50 @@ class OccupancyMap:
     ) -> int:
         """Insert one scan: rays from ``origin`` to each point (world, metres). Returns the
         number of voxels updated."""
-        points = np.asarray(points, np.float64).reshape(-1, 3)
-        points = points[np.all(np.isfinite(points), axis=1)]
+        points = np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 3))
         # a copy: numba compiles its kernels anew for a read-only array (a decoded pose's)
         origin = np.array(origin, np.float64)
         max_range = self.config.max_range if max_range is None else max_range
         if len(self._rays) < len(points):
             self._rays = np.empty((len(points), 3), np.float64)
+            self._ray_scratch = np.empty((len(points), 3), np.float64)
         nx, ny, nz = self.shape
         grid = (self._visited, self._hit, self._dirty, nx, ny, nz, self.lo, self.voxel, origin)
-        n = _hits(*grid, points, max_range, self.config.discretize, self._rays)
-        chunks = max(1, min(numba.get_num_threads() * 32, n // 256 + 1))
-        _free(*grid, self._rays[:n], max_range, chunks)
+        starts = np.zeros(len(self._deltas) + 2, np.int64)
+        self._seen.fill(-1)
+        self._grids.fill(0)
+        if len(self._keys) < len(points):
+            self._keys = np.empty(len(points), np.int64)
+        keys = self._keys[: len(points)]
+        _cells(points, self.lo, self.voxel, keys)
+        _hits(
+            *grid, points, keys, max_range, self.config.discretize, self._seen,
+            _basis(points, origin), self._deltas, self._grids, self._grid_off, self._grid_w,
+            PASS_SPAN, self._ray_scratch, self._rays, starts,
+        )  # fmt: skip
+        threads = numba.get_num_threads()
+        last = len(starts) - 2
+        for k, (a, b) in enumerate(itertools.pairwise(starts)):
+            if b > a:
+                # the first pass walks whole rays: nothing is cleared before it; the last
+                # one's rays each run beside one cast already, a finest cell away
+                patience = 0 if k == 0 else PATIENCE_REST if k == last else PATIENCE
+                walk = (self._visited, self._cleared, *grid[2:])
+                # in rounds (every SUBPASSES-th ray), each stopping on what the ones before
+                # it cleared; a small pass at once and on this thread (no wake-ups)
+                step = SUBPASSES if patience and b - a >= SUBPASSES * SMALL_PASS else 1
+                for i in range(step):
+                    if patience:
+                        _snapshot(self._visited, self._cleared, self._dirty)
+                    rays = self._rays[a + i : b : step]
+                    if len(rays) < SMALL_PASS:
+                        _free_serial(*walk, rays, max_range, patience)
+                    else:
+                        chunks = max(1, min(threads * 32, len(rays) // 64 + 1))
+                        _free(*walk, rays, max_range, chunks, patience)
         blocks = np.flatnonzero(self._dirty)
         self._dirty[blocks] = 0
-        count = _apply(
-            self.L,
-            self._visited,
-            self._hit,
-            blocks,
-            self.l_hit,
-            self.l_miss,
-            self.l_min,
-            self.l_max,
-        )
+        count = _apply(self.L, self._visited, self._hit, self._cleared, blocks, *self._milli)
         self.frames += 1
         self.version += 1
         return int(count)
