@@ -43,8 +43,9 @@ class OrganizedCloud:
 
     def viewing_distance(self, pixels: np.ndarray) -> float:
         """Median distance from the pixels' points to the camera (the noise scale)."""
-        d = self.points.reshape(-1, 3)[pixels] - self.camera_centre
-        return float(np.median(np.linalg.norm(d, axis=1)))
+        return kernels.view_median(
+            self.points.reshape(-1, 3), np.asarray(pixels, np.int64), self.camera_centre
+        )
 
     def viewer(self, pixels: np.ndarray) -> np.ndarray:
         """Where the pixels were seen from: the camera."""

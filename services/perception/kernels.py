@@ -637,3 +637,57 @@ def grid_labels(pixels: np.ndarray, width: int) -> tuple[np.ndarray, int]:
     for i in range(n):
         out[i] = label[rows[i], cols[i]]
     return out, count
+
+
+@njit(cache=True, nogil=True)
+def view_median(points: np.ndarray, pixels: np.ndarray, centre: np.ndarray) -> float:
+    """np.median of the distances from the grid ``points`` (h·w, 3) at ``pixels`` to
+    ``centre``: one pass instead of a gather, a norm and numpy's median (0.1 ms a call,
+    twenty calls a frame)."""
+    n = len(pixels)
+    d = np.empty(n)
+    for k in range(n):
+        p = pixels[k]
+        x = np.float64(points[p, 0]) - centre[0]
+        y = np.float64(points[p, 1]) - centre[1]
+        z = np.float64(points[p, 2]) - centre[2]
+        d[k] = math.sqrt(x * x + y * y + z * z)
+    d.sort()
+    if n % 2:
+        return d[n // 2]
+    return (d[n // 2 - 1] + d[n // 2]) / 2
+
+
+@njit(cache=True, nogil=True)
+def plane_coords(
+    points: np.ndarray, e1: np.ndarray, e2: np.ndarray, normal: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """A plane's points in its frame: their mean o, their in-plane coordinates
+    ((p − o)·e1, (p − o)·e2) and the least and greatest height (p − o)·normal."""
+    n = points.shape[0]
+    o = np.zeros(3)
+    for i in range(n):
+        for a in range(3):
+            o[a] += points[i, a]
+    o /= n
+    Q = np.empty((n, 2))
+    lo, hi = np.inf, -np.inf
+    for i in range(n):
+        dx, dy, dz = points[i, 0] - o[0], points[i, 1] - o[1], points[i, 2] - o[2]
+        Q[i, 0] = dx * e1[0] + dy * e1[1] + dz * e1[2]
+        Q[i, 1] = dx * e2[0] + dy * e2[1] + dz * e2[2]
+        h = dx * normal[0] + dy * normal[1] + dz * normal[2]
+        lo = min(lo, h)
+        hi = max(hi, h)
+    return o, Q, lo, hi
+
+
+@njit(cache=True, nogil=True)
+def rectangle_span(Q: np.ndarray, d1: np.ndarray) -> tuple[float, float, float, float]:
+    """Least and greatest of Q·d1 and of Q·d2, d2 = d1 turned by 90°."""
+    u0, u1, v0, v1 = np.inf, -np.inf, np.inf, -np.inf
+    for i in range(Q.shape[0]):
+        u = Q[i, 0] * d1[0] + Q[i, 1] * d1[1]
+        v = -Q[i, 0] * d1[1] + Q[i, 1] * d1[0]
+        u0, u1, v0, v1 = min(u0, u), max(u1, u), min(v0, v), max(v1, v)
+    return u0, u1, v0, v1

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.perception import primitives, ransac
+from services.perception import kernels, obb, primitives, ransac
 from services.perception.cloud import organized_cloud
 from services.perception.relations import fifth_percentile
 
@@ -184,3 +184,59 @@ def test_curved_hypotheses_and_inliers_are_numpys(shape, seed):
     fit = ransac.fit_cylinder(X, N, rng, 0.004, 0.9, 0.01, 0.5)
     if shape == "cylinder":  # and the whole fit still finds the cylinder
         assert fit is not None and abs(fit.radius - 0.05) < 0.002 and fit.count > 300
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 200])
+def test_view_median_is_numpys(n):
+    rng = np.random.default_rng(n)
+    points = rng.normal(size=(500, 3)).astype(np.float32)
+    pixels = rng.choice(500, n, replace=False)
+    centre = np.array([0.3, -0.2, 1.5])
+    want = np.median(np.linalg.norm(points[pixels] - centre, axis=1))
+    assert kernels.view_median(points, pixels, centre) == pytest.approx(want, abs=1e-12)
+
+
+def _plane_box_numpy(points, normal):
+    """plane_box as numpy passes (what the compiled frame coordinates replace)."""
+    e1, e2 = obb._frame(normal)
+    o = points.mean(0)
+    D = points - o
+    Q = np.column_stack([D @ e1, D @ e2])
+    sample = Q if len(Q) <= 2000 else Q[np.linspace(0, len(Q) - 1, 2000).astype(int)]
+    d1 = obb._rectangle_direction(sample)
+    d2 = np.array([-d1[1], d1[0]])
+    u, v = Q @ d1, Q @ d2
+    mid = (u.max() + u.min()) / 2 * d1 + (v.max() + v.min()) / 2 * d2
+    a1 = d1[0] * e1 + d1[1] * e2
+    h = D @ normal
+    center = o + mid[0] * e1 + mid[1] * e2 + (h.max() + h.min()) / 2 * normal
+    R = np.column_stack([a1, obb.cross(normal, a1), normal])
+    return center, R, np.array([np.ptp(u), np.ptp(v), np.ptp(h)])
+
+
+@pytest.mark.parametrize("n", [3, 500, 5000])
+def test_plane_box_is_the_numpy_one(n):
+    rng = np.random.default_rng(n)
+    normal = obb.cross([0.2, 0.1, 1.0], [1.0, 0.3, 0.0])
+    normal /= np.linalg.norm(normal)
+    e1, e2 = obb._frame(normal)
+    uv = rng.uniform(-0.4, 0.4, (n, 2)) * [1.0, 0.5]
+    points = 0.7 + uv[:, :1] * e1 + uv[:, 1:] * e2 + rng.normal(0, 0.002, (n, 1)) * normal
+    box = obb.plane_box(points, normal)
+    for got, want in zip((box.center, box.rotation, box.extent), _plane_box_numpy(points, normal),
+                         strict=True):  # fmt: skip
+        assert np.abs(got - want).max() < 1e-12
+
+
+def test_fill_counts_the_occupied_cells():
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(0, 0.3, 400), rng.uniform(0, 0.1, 400), np.zeros(400)])
+    normal = np.array([0.0, 0.0, 1.0])
+    p = primitives.Extracted("plane", np.arange(400), points, obb.plane_box(points, normal), 0,
+                             normal=normal)  # fmt: skip
+    R = p.box.rotation
+    uv = (points - p.box.center) @ R[:, :2]
+    shape = np.maximum(1, np.ceil(p.box.extent[:2] / 0.02)).astype(int)
+    ij = np.clip(((uv + p.box.extent[:2] / 2) / 0.02).astype(int), 0, shape - 1)
+    want = len(np.unique(ij[:, 0] * shape[1] + ij[:, 1])) / float(np.prod(shape))
+    assert primitives.fill(p) == want
