@@ -268,6 +268,24 @@ def watch_clock(session: zenoh.Session, keys: Keys, clock: SimClock, stop: threa
                 clock.add(status.sim_time, sent, received)
 
 
+def wait_active(session: zenoh.Session, keys: Keys, services: set[str], timeout: float) -> bool:
+    """Wait until every service of ``services`` has an active liveliness token (the scene
+    memory's comes once its kernels are warm, after ``avs up`` may have said it is ready: a
+    standby token is not enough); print what is still missing every 10 s."""
+    deadline, said = time.monotonic() + timeout, time.monotonic()
+    while time.monotonic() < deadline:
+        tokens = {str(r.ok.key_expr).split("/")[3] for r in session.liveliness().get(keys.alive())
+                  if r.ok is not None}  # fmt: skip
+        missing = services - tokens
+        if not missing:
+            return True
+        if time.monotonic() - said >= 10:
+            print(f"  waiting for {', '.join(sorted(missing))} …", flush=True)
+            said = time.monotonic()
+        time.sleep(0.5)
+    return False
+
+
 def metrics(session: zenoh.Session, keys: Keys) -> dict[str, ServiceMetrics]:
     """Every service instance's metrics now, by instance (asked again where one is missing:
     a loaded machine may miss an answer)."""
@@ -345,11 +363,12 @@ def plot(rows: list[dict], rates: list[dict], path: Path) -> None:
             axes[0].plot(t, ms, ".-" if stage == "fused" else ".", c=colour, ms=3, lw=0.6,
                          label=f"{label} (p50 {np.median(ms):.0f} ms)")  # fmt: skip
     axes[0].axhline(250, ls=":", c="k", lw=0.8)
-    axes[0].set(ylabel="ms after capture", title="frame → stage latency, per frame")
+    axes[0].set_yscale("log")
+    axes[0].set(ylabel="ms after capture (log)", title="frame → stage latency, per frame")
     axes[0].legend(fontsize=8, loc="upper left")
     if rates:
         t = [r["t"] for r in rates]
-        for key, label in (("in", "frames in"), ("observed", "observed"),
+        for key, label in (("in", "frames published"), ("observed", "observed"),
                            ("fused", "fused"), ("skipped", "keyframe-skipped")):  # fmt: skip
             axes[1].plot(t, [r[key] for r in rates], "o-", ms=3, label=label)
         axes[1].axhline(5, ls=":", c="k", lw=0.8)
@@ -359,20 +378,22 @@ def plot(rows: list[dict], rates: list[dict], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-def rates_by_window(rows: list[dict], duration: float, skipped_at: list, step: float = 5.0):
-    """Frames in / observed / fused per second in windows of ``step`` s (by capture time),
-    and the keyframe policy's skips (from the scene memory's metrics as the run went)."""
+def rates_by_window(rows: list[dict], duration: float, marks: list, step: float = 5.0):
+    """Per second in windows of ``step`` s: frames the sim published and the keyframe policy
+    skipped (from the metrics taken as the run went: ``marks`` of (t, published, skipped)),
+    and frames observed and fused (by capture time)."""
     out = []
-    for a in np.arange(0.0, duration, step):
+    for a in np.arange(0.0, duration - 1.0, step):
         b = min(a + step, duration)
         w = [r for r in rows if a <= r["t"] < b]
-        skipped = [s for t, s in skipped_at if a <= t <= b]
+        m = [x for x in marks if a - 0.5 <= x[0] <= b + 0.5]
+        span = (m[-1][0] - m[0][0]) if len(m) > 1 else 0.0
         out.append({
             "t": round(float(a + b) / 2, 1),
-            "in": round(len(w) / (b - a), 2),
+            "in": round((m[-1][1] - m[0][1]) / span, 2) if span > 0 else math.nan,
             "observed": round(sum(r["observation"] is not None for r in w) / (b - a), 2),
             "fused": round(sum(r["fused"] is not None for r in w) / (b - a), 2),
-            "skipped": round((skipped[-1] - skipped[0]) / (b - a), 2) if len(skipped) > 1 else 0,
+            "skipped": round((m[-1][2] - m[0][2]) / span, 2) if span > 0 else math.nan,
         })  # fmt: skip
     return out
 
@@ -435,6 +456,12 @@ def run(args, up: subprocess.Popen, endpoint: str, keys: Keys, started: float) -
     labels |= {up.pid: "router (avs up)", os.getpid(): "pipeline meter"}
     ledger, clock, stop = Ledger(), SimClock(), threading.Event()
     with zenoh.open(client_config(endpoint)) as session:
+        services = {c["service"] for c in ready["services"]}
+        if not wait_active(session, keys, services, timeout=300):
+            print("not every service became active within 300 s", file=sys.stderr)
+            return 1
+        print(f"every service active {time.monotonic() - started:.0f} s after the start",
+              flush=True)  # fmt: skip
         subs = subscribe(session, keys, ledger, args.frames)
         jobs = ((drive, (session, keys, stop)),
                 (sweep_gaze, (session, keys, args.pan_deg_s, stop)),
@@ -446,8 +473,14 @@ def run(args, up: subprocess.Popen, endpoint: str, keys: Keys, started: float) -
         m0 = metrics(session, keys)
         busy0, ticks0 = proc_stat(), thread_ticks(labels)
         t0 = time.monotonic()
-        skipped_at: list[tuple[float, float]] = [(0.0, counter(active_memory(m0), "extra",
-                                                               "frames_skipped"))]  # fmt: skip
+        rgbd = keys.rgbd(CAMERA)
+
+        def mark(t: float, ms: dict[str, ServiceMetrics]) -> tuple[float, float, float]:
+            sim = next((m for m in ms.values() if m.service == "sim"), None)
+            return (t, counter(sim, "messages_out", rgbd),
+                    counter(active_memory(ms), "extra", "frames_skipped"))  # fmt: skip
+
+        marks = [mark(0.0, m0)]
         next_report = t0 + 5.0
         while (now := time.monotonic()) < t0 + args.duration:
             time.sleep(max(0.0, min(next_report, t0 + args.duration) - now))
@@ -455,12 +488,12 @@ def run(args, up: subprocess.Popen, endpoint: str, keys: Keys, started: float) -
             if now >= next_report or now >= t0 + args.duration:
                 next_report += 5.0
                 rows, per = latencies(ledger.snapshot(), clock, t0, now)
-                mem = active_memory(metrics(session, keys))
-                skipped_at.append((now - t0, counter(mem, "extra", "frames_skipped")))
-                print(f"  {now - t0:5.1f}/{args.duration:g} s: frames {len(rows)}, observed "
-                      f"{len(per['observation'])}, in the model {len(per['model'])}, in the "
-                      f"map {len(per['map'])}, fused {len(per['fused'])}, keyframe-skipped "
-                      f"{skipped_at[-1][1] - skipped_at[0][1]:.0f}; p50 ms: observation "
+                marks.append(mark(now - t0, metrics(session, keys)))
+                published, skipped = (marks[-1][i] - marks[0][i] for i in (1, 2))
+                print(f"  {now - t0:5.1f}/{args.duration:g} s: published {published:.0f}, "
+                      f"observed {len(per['observation'])}, in the model {len(per['model'])}, "
+                      f"in the map {len(per['map'])}, fused {len(per['fused'])}, "
+                      f"keyframe-skipped {skipped:.0f}; p50 ms: observation "
                       f"{pct(per['observation'], 50)}, fused {pct(per['fused'], 50)}",
                       flush=True)  # fmt: skip
         t1 = time.monotonic()
@@ -477,10 +510,11 @@ def run(args, up: subprocess.Popen, endpoint: str, keys: Keys, started: float) -
     cpu_percent = round(100 * os.cpu_count() * (busy1[0] - busy0[0]) / max(1, busy1[1] - busy0[1]),
                         1)  # fmt: skip
     processes = cpu_table(ticks0, ticks1, elapsed)
+    ours = round(sum(sum(t.values()) for t in processes.values()), 1)
+    load = [round(x, 2) for x in os.getloadavg()]
     rows, per = latencies(ledger.snapshot(), clock, t0, t1)
     sim0 = next((m for m in m0.values() if m.service == "sim"), None)
     sim1 = next((m for m in m1.values() if m.service == "sim"), None)
-    rgbd = keys.rgbd(CAMERA)
     published = counter(sim1, "messages_out", rgbd) - counter(sim0, "messages_out", rgbd)
     span = (sim1.stamp - sim0.stamp) if sim0 and sim1 else elapsed
     fps_in = published / span if published > 0 else len(rows) / elapsed
@@ -527,10 +561,11 @@ def run(args, up: subprocess.Popen, endpoint: str, keys: Keys, started: float) -
                 "fps": round(len(per[stage]) / elapsed, 2)}
         for stage in ("arrived", *STAGES) if per[stage]
     }  # fmt: skip
-    rates = rates_by_window(rows, elapsed, skipped_at)
+    rates = rates_by_window(rows, elapsed, marks)
     (args.out / "pipeline.json").write_text(json.dumps({
         "summary": summary, "stages": detail, "counts": counts, "stage_timings": stages,
-        "cpu_percent_by_process": processes, "clock_rtt_ms_p50": round(clock.rtt_ms(), 2),
+        "cpu_percent_by_process": processes, "cpu_percent_stack": ours,
+        "loadavg_at_end": load, "clock_rtt_ms_p50": round(clock.rtt_ms(), 2),
         "duration_s": round(elapsed, 2), "fps": args.fps, "pan_deg_s": args.pan_deg_s,
         "scene": SCENE, "rates": rates, "frames": rows,
     }, indent=1))  # fmt: skip
@@ -554,6 +589,8 @@ def run(args, up: subprocess.Popen, endpoint: str, keys: Keys, started: float) -
     print("CPU (% of one core over the run): " + ", ".join(
         f"{label} {sum(t.values()):.0f}" for label, t in
         sorted(processes.items(), key=lambda kv: -sum(kv[1].values()))))  # fmt: skip
+    print(f"the stack and this meter took {ours:.0f} % of the machine's {cpu_percent:.0f} % "
+          f"(the rest: other processes on this machine; load average {load})")  # fmt: skip
     print(f"wrote {args.out / 'pipeline.json'} and {args.out / 'pipeline.png'}")
     print(" ".join(f"{k}={v}" for k, v in summary.items()))
     return 0
