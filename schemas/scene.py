@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -180,7 +180,10 @@ class SceneObservation(SceneGraph, Stamped):
 
 
 class SceneModel(SceneGraph, Stamped):
-    """The fused scene across views (memory/scene), with occ(e) on support edges."""
+    """The fused scene across views (memory/scene), with occ(e) on support edges. v2:
+    ``frame_seq`` and ``frame_stamp``, the frame whose observation the model fused last."""
+
+    VERSION: ClassVar[int] = 2
 
     model_version: int = Field(ge=0, description="increases with every accepted update")
     n_views: int = Field(ge=0)
@@ -188,6 +191,13 @@ class SceneModel(SceneGraph, Stamped):
     added: int = Field(0, ge=0, description="primitives added by the last update")
     modified: int = Field(0, ge=0)
     removed: int = Field(0, ge=0)
+    frame_seq: int | None = Field(
+        None,
+        ge=0,
+        description="seq of the RgbdFrame (or registered cloud) whose observation the model "
+        "fused last; None before the first",
+    )
+    frame_stamp: float | None = Field(None, description="that frame's capture stamp")
 
 
 class PointCloud(Stamped):

@@ -631,7 +631,15 @@ class Fusion:
             )
         ]
 
-    def scene_model(self, seq: int = 0, stamp: float = 0.0) -> SceneModel:
+    def scene_model(
+        self,
+        seq: int = 0,
+        stamp: float = 0.0,
+        frame_seq: int | None = None,
+        frame_stamp: float | None = None,
+    ) -> SceneModel:
+        """The fused scene; ``frame_seq`` / ``frame_stamp``: the frame whose observation was
+        fused last (what a reader times the pipeline by)."""
         root, unstable = self.unstable()
         prims = []
         for i in sorted(self.prims):
@@ -661,4 +669,6 @@ class Fusion:
             added=self.last.added,
             modified=self.last.modified,
             removed=self.last.removed,
+            frame_seq=frame_seq,
+            frame_stamp=frame_stamp,
         )

@@ -59,6 +59,9 @@ class SceneMemory:
     #: (n, 3) float32: the optical centre each point of ``cloud`` was seen from (None: a
     #: snapshot from before they were kept)
     viewpoints: np.ndarray | None = None
+    #: (seq, capture stamp) of the frame whose observation was fused last (None: none yet):
+    #: the scene model names it, so a reader can tell how far behind the camera it is
+    fused_frame: tuple[int, float] | None = None
 
     def __init__(self, config: MemoryConfig | None = None) -> None:
         self.config = config or MemoryConfig()
@@ -193,11 +196,13 @@ class SceneMemory:
         if self.T_world_odom is not None and not whole:
             obs = moved(obs, self.T_world_odom)
         update = self.fusion.update(obs, whole=whole)
+        self.fused_frame = (obs.frame_seq, obs.frame_stamp)
         self.timings_ms["fuse_ms"] = (time.perf_counter() - t0) * 1e3
         return update
 
     def scene(self, seq: int = 0, stamp: float = 0.0) -> SceneModel:
-        return self.fusion.scene_model(seq, stamp)
+        frame_seq, frame_stamp = self.fused_frame or (None, None)
+        return self.fusion.scene_model(seq, stamp, frame_seq, frame_stamp)
 
     def point_cloud(self, seq: int = 0, stamp: float = 0.0, cap: int = 100_000) -> PointCloud:
         idx = np.linspace(0, len(self.cloud) - 1, min(cap, len(self.cloud))).astype(int)

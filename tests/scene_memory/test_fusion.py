@@ -164,3 +164,14 @@ def test_support_edges_the_fused_geometry_rules_out_are_not_in_the_model():
                                (short_id, tall_id), (floor, leg_id)}  # fmt: skip
     kept = {(e.supporter, e.supported) for e in fusion.scene_model().support_edges}
     assert kept == {(floor, top), (top, short_id), (floor, leg_id)}
+
+
+def test_the_scene_model_names_the_frame_it_fused_last():
+    from services.scene_memory.memory import SceneMemory
+
+    memory = SceneMemory()
+    assert memory.scene().frame_seq is None and memory.scene().frame_stamp is None
+    for seq in (3, 7):
+        memory.fuse(observation(seq, [plane(0, (0.5, 1.3), (-0.4, 0.4), 0.72)]))
+    model = memory.scene(2, 2.0)
+    assert (model.frame_seq, model.frame_stamp) == (7, 7.0)

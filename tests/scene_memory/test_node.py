@@ -19,6 +19,7 @@ from schemas import (
     OccupancyStats,
     PointCloud,
     SceneModel,
+    SceneObservation,
     ServiceMetrics,
     decode,
     encode,
@@ -104,6 +105,9 @@ def test_fuses_serves_and_survives_kill_9(client, router, procs, tmp_path, updat
     # every observation published the scene
     wait_for(lambda: len(published) == 3, 10, "three published scenes")
     assert summary(published[-1]) == summary(before_scene)
+    # each names the frame whose observation it fused (what benchmarks/pipeline.py times)
+    observed = [m for _, m in updates[:7] if isinstance(m, SceneObservation)]
+    assert [m.frame_seq for m in published] == [o.frame_seq for o in observed]
     # a slice of the map and the registered cloud
     box = BoxQuery(box_min=np.array([0.5, -0.5, 0.5]), box_max=np.array([1.5, 0.5, 1.2]))
     piece = c.get(KEYS.occupancy("slice"), OccupancySlice, box)
