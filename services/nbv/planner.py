@@ -106,7 +106,7 @@ class Planner:
 
     def reachable_views(self, centre: np.ndarray, t: np.ndarray, s: np.ndarray) -> Candidates:
         """Eq. 4.2, 4.3 and the head IK; views without a solution are discarded."""
-        keep, poses, bases, joints = [], [], [], []
+        todo, todo_bases = [], []
         lo, hi = self.ik.height_range()
         tol = self.config.height_tol
         for i, ti in enumerate(t):
@@ -116,7 +116,13 @@ class Planner:
             w = self.config.workspace
             if w is not None and not np.all((w[0][:2] <= base[:2]) & (base[:2] <= w[1][:2])):
                 continue  # outside where the platform may go
-            sol = self.ik.solve(base, centre, centre[2] + ti[2], height_tol=self.config.height_tol)
+            todo.append(i)
+            todo_bases.append(base)
+        targets = np.tile(np.asarray(centre, float), (len(todo), 1))
+        heights = [centre[2] + t[i, 2] for i in todo]
+        sols = self.ik.solve_many(todo_bases, targets, heights, height_tol=tol)
+        keep, poses, bases, joints = [], [], [], []
+        for i, base, sol in zip(todo, todo_bases, sols, strict=True):
             if sol is None:
                 continue
             keep.append(i)
