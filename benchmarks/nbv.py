@@ -36,9 +36,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-import open3d as o3d  # noqa: E402
-import pyoctomap  # noqa: E402
-
 from avs.commands.perceive import look_target  # noqa: E402
 from services.nbv import information_gain as ig  # noqa: E402
 from services.nbv.planner import Planner, PlannerConfig  # noqa: E402
@@ -169,6 +166,10 @@ def main() -> None:
         ig.SkipMap.build(states, map_origin, VOXEL, box)
     skip_s = (time.perf_counter() - t0) / args.repeats
     ours_rps = n_rays / ours_s
+
+    # the peers' libraries only now: their thread pools (Open3D's) are not there while ours run
+    import open3d as o3d
+    import pyoctomap
 
     # Open3D (Embree): the occupied voxels' exposed faces, first hits of the same rays
     t0 = time.perf_counter()
