@@ -186,11 +186,8 @@ class Planner:
         at meets no occupied voxel (before the last 15 cm: the target lies on a surface). A
         view behind a known wall is no view of the scene, however much unknown space is
         around it."""
-        keep = [
-            i
-            for i in range(len(cands.t))
-            if topdown.line_of_sight(*occupancy, cands.targets[i], cands.poses[i][:3, 3], 0.15)
-        ]
+        sight = topdown.lines_of_sight(*occupancy, cands.targets, cands.poses[:, :3, 3], 0.15)
+        keep = np.flatnonzero(sight).tolist()
         return Candidates(
             cands.t[keep],
             cands.targets[keep],

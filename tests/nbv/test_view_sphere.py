@@ -106,3 +106,20 @@ def test_compiled_head_ik_solves_as_pinocchio_does():
             assert np.allclose(a.T_world_camera, b.T_world_camera, atol=1e-9)
             # acos near 1 turns a rounding of 1e-16 into 1.5e-8 rad
             assert a.aim_error == pytest.approx(b.aim_error, abs=1e-6)
+
+
+def test_compiled_lines_of_sight_match_the_numpy_one():
+    """The planner's visibility check of all views at once gives line_of_sight's answers."""
+    from services.nbv import topdown
+
+    rng = np.random.default_rng(3)
+    states = rng.choice(np.array([0, 1, 2], np.uint8), size=(40, 30, 20), p=[0.3, 0.67, 0.03])
+    origin = np.array([-0.2, -0.1, 0.0])
+    a = rng.uniform(-0.3, 0.8, (400, 3))
+    b = rng.uniform(-0.3, 0.8, (400, 3))
+    ref = [
+        topdown.line_of_sight(states, origin, 0.02, p, q, 0.15) for p, q in zip(a, b, strict=True)
+    ]
+    got = topdown.lines_of_sight(states, origin, 0.02, a, b, 0.15)
+    assert 0 < sum(ref) < len(ref)
+    assert got.tolist() == ref
