@@ -125,13 +125,16 @@ def _exact_motions():
 
         def __init__(self, si, free: np.ndarray, origin: np.ndarray, cell: float) -> None:
             super().__init__(si)
-            self.free, self.origin, self.cell = free, origin, cell
+            self.free, self.cell = free, float(cell)
+            # Python floats (the same doubles): numpy scalars make each of the ~11k calls of a
+            # planning step slower for nothing
+            self.ox, self.oy = float(origin[0]), float(origin[1])
 
         def checkMotion(self, s1, s2, *last_valid) -> bool:
-            o, c = self.origin, self.cell
+            ox, oy, c = self.ox, self.oy, self.cell
             return segment_free(
-                self.free, (s1.getX() - o[0]) / c, (s1.getY() - o[1]) / c,
-                (s2.getX() - o[0]) / c, (s2.getY() - o[1]) / c,
+                self.free, (s1.getX() - ox) / c, (s1.getY() - oy) / c,
+                (s2.getX() - ox) / c, (s2.getY() - oy) / c,
             )  # fmt: skip
 
     return ExactMotions
@@ -214,9 +217,11 @@ class PathPlanner:
             free, origin, cell = self.free, self.floor.origin, self.floor.cell
             nx, ny = free.shape
 
+            ox, oy, cell = float(origin[0]), float(origin[1]), float(cell)
+
             def valid(state) -> bool:
-                i = int((state.getX() - origin[0]) / cell)
-                j = int((state.getY() - origin[1]) / cell)
+                i = int((state.getX() - ox) / cell)
+                j = int((state.getY() - oy) / cell)
                 return bool(not (0 <= i < nx and 0 <= j < ny) or free[i, j])
 
             si.setStateValidityChecker(valid)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -106,7 +107,7 @@ class Planner:
 
     def reachable_views(self, centre: np.ndarray, t: np.ndarray, s: np.ndarray) -> Candidates:
         """Eq. 4.2, 4.3 and the head IK; views without a solution are discarded."""
-        keep, poses, bases, joints = [], [], [], []
+        todo, todo_bases = [], []
         lo, hi = self.ik.height_range()
         tol = self.config.height_tol
         for i, ti in enumerate(t):
@@ -116,7 +117,13 @@ class Planner:
             w = self.config.workspace
             if w is not None and not np.all((w[0][:2] <= base[:2]) & (base[:2] <= w[1][:2])):
                 continue  # outside where the platform may go
-            sol = self.ik.solve(base, centre, centre[2] + ti[2], height_tol=self.config.height_tol)
+            todo.append(i)
+            todo_bases.append(base)
+        targets = np.tile(np.asarray(centre, float), (len(todo), 1))
+        heights = [centre[2] + t[i, 2] for i in todo]
+        sols = self.ik.solve_many(todo_bases, targets, heights, height_tol=tol)
+        keep, poses, bases, joints = [], [], [], []
+        for i, base, sol in zip(todo, todo_bases, sols, strict=True):
             if sol is None:
                 continue
             keep.append(i)
@@ -179,11 +186,8 @@ class Planner:
         at meets no occupied voxel (before the last 15 cm: the target lies on a surface). A
         view behind a known wall is no view of the scene, however much unknown space is
         around it."""
-        keep = [
-            i
-            for i in range(len(cands.t))
-            if topdown.line_of_sight(*occupancy, cands.targets[i], cands.poses[i][:3, 3], 0.15)
-        ]
+        sight = topdown.lines_of_sight(*occupancy, cands.targets, cands.poses[:, :3, 3], 0.15)
+        keep = np.flatnonzero(sight).tolist()
         return Candidates(
             cands.t[keep],
             cands.targets[keep],
@@ -250,6 +254,30 @@ class Planner:
             self.config, self.rng.bit_generator.state = config, rng
             self.first_gain, self.coarse_gains = first_gain, fan_out
 
+    def path_costs(
+        self, states, origin, voxel, current, bases: np.ndarray
+    ) -> tuple[np.ndarray, list[np.ndarray | None], PathPlanner, float]:
+        """(c(v), the path) from ``current`` to each platform pose (Eq. 4.9, ∞ and None when
+        unreachable), the path planner and the milliseconds it all took."""
+        c = self.config
+        t0 = time.perf_counter()
+        floor = FloorMap.from_states(
+            states,
+            origin,
+            voxel,
+            keep_free=[(current[0], current[1], c.footprint + 0.1)],
+            unseen_inside=c.roi,
+        )
+        planner = PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
+        cost = np.full(len(bases), math.inf)
+        paths: list[np.ndarray | None] = [None] * len(bases)
+        try:
+            for i, b in enumerate(bases):
+                cost[i], paths[i] = planner.cost(np.array(current), b)
+        finally:
+            planner.close()
+        return cost, paths, planner, (time.perf_counter() - t0) * 1e3
+
     def plan(
         self,
         centres: np.ndarray,
@@ -269,29 +297,18 @@ class Planner:
         cands = self.visible(reachable_by_ik, occupancy)
         sampled = (len(reachable_by_ik.t), len(cands.t))
         times["sampling_ms"] = (time.perf_counter() - t0) * 1e3
-        t1 = time.perf_counter()
-        gain, _ = ig.hierarchical(
-            states, origin, voxel, cands.poses, c.intrinsics, c.max_range, c.every, c.best_k,
-            c.roi, c.ig_measure, self.coarse_gains,
-        )  # fmt: skip
-        times["information_gain_ms"] = (time.perf_counter() - t1) * 1e3
-        t2 = time.perf_counter()
-        floor = FloorMap.from_states(
-            states,
-            origin,
-            voxel,
-            keep_free=[(current[0], current[1], c.footprint + 0.1)],
-            unseen_inside=c.roi,
-        )
-        planner = PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
-        cost = np.full(len(gain), math.inf)
-        paths: list[np.ndarray | None] = [None] * len(gain)
-        try:
-            for i, b in enumerate(cands.base):
-                cost[i], paths[i] = planner.cost(np.array(current), b)
-        finally:
-            planner.close()
-        times["path_cost_ms"] = (time.perf_counter() - t2) * 1e3
+        # path costs need no gains: planned in a second thread while IG runs (its kernels
+        # release the GIL), so the OMPL / Python work fills the cores' gaps instead of
+        # following the ray casting; one thread, in order, as before: OMPL draws the same
+        with ThreadPoolExecutor(1, thread_name_prefix="nbv-paths") as pool:
+            paths_job = pool.submit(self.path_costs, states, origin, voxel, current, cands.base)
+            t1 = time.perf_counter()
+            gain, _ = ig.hierarchical(
+                states, origin, voxel, cands.poses, c.intrinsics, c.max_range, c.every,
+                c.best_k, c.roi, c.ig_measure, self.coarse_gains,
+            )  # fmt: skip
+            times["information_gain_ms"] = (time.perf_counter() - t1) * 1e3
+            cost, paths, planner, times["path_cost_ms"] = paths_job.result()
         u = utility(c.strategy, gain, cost, cands.saliency, c.lam, self.rng)
         reachable = np.isfinite(cost)
         best = int(np.argmax(u)) if reachable.any() else None

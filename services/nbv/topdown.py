@@ -8,6 +8,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from schemas import SceneModel
 from services.nbv.view_sphere import spherical
@@ -80,6 +81,34 @@ def points_of_interest(
             az = math.atan2(x[1] - centre[1], x[0] - centre[0])
             out.append(PoI(x, edge_saliency(occ, max(scene.n_views, 1), lambda_s), az))
     return out
+
+
+@njit(cache=True, nogil=True)
+def _sight(states, origin, voxel, a, b, skip):
+    """``line_of_sight``'s samples and test, step for step, compiled (a planning step checks
+    hundreds of views: ~0.1 ms of numpy calls each)."""
+    d = b - a
+    length = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    u = d / length
+    ts = np.arange(skip, length, voxel / 2)
+    nx, ny, nz = states.shape
+    for t in ts:
+        i = np.int64(np.floor((a[0] + t * u[0] - origin[0]) / voxel))
+        j = np.int64(np.floor((a[1] + t * u[1] - origin[1]) / voxel))
+        k = np.int64(np.floor((a[2] + t * u[2] - origin[2]) / voxel))
+        if 0 <= i < nx and 0 <= j < ny and 0 <= k < nz and states[i, j, k] == OCCUPIED:
+            return False
+    return True
+
+
+def lines_of_sight(states, origin, voxel, a: np.ndarray, b: np.ndarray, skip: float):
+    """``line_of_sight`` of each segment a[i] → b[i] (bool per row)."""
+    a = np.ascontiguousarray(a, np.float64).reshape(-1, 3)
+    b = np.ascontiguousarray(b, np.float64).reshape(-1, 3)
+    origin, voxel, skip = np.asarray(origin, np.float64), float(voxel), float(skip)
+    return np.array(
+        [_sight(states, origin, voxel, p, q, skip) for p, q in zip(a, b, strict=True)], bool
+    )
 
 
 def line_of_sight(states, origin, voxel, a: np.ndarray, b: np.ndarray, skip: float) -> bool:

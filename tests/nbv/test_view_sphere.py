@@ -85,3 +85,41 @@ def test_head_ik_reaches_a_view_or_says_it_cannot():
     # a view from straight above the centre needs a camera at 2.3 m: no torso reaches it
     top = np.array([1e-3, 0.0, 1.5])
     assert ik.solve(vs.platform_pose(CENTRE, top), CENTRE, CENTRE[2] + 1.5) is None
+
+
+def test_compiled_head_ik_solves_as_pinocchio_does():
+    """The compiled solver (the camera's chain out of the model) against the same Gauss-Newton
+    through pinocchio's forward kinematics, on every view of a 5° sphere: the same views
+    reached, the same joints and camera poses to rounding."""
+    ik = HeadIK(robot_mjcf("armar6"), "head_rgbd", "armar6")
+    assert ik.chain is not None
+    t = vs.equidistant(72, 1.5)[::3]
+    bases = [vs.platform_pose(CENTRE, ti) for ti in t]
+    heights = CENTRE[2] + t[:, 2]
+    fast = ik.solve_many(bases, np.tile(CENTRE, (len(t), 1)), heights)
+    ref = [ik.solve_pinocchio(b, CENTRE, h) for b, h in zip(bases, heights, strict=True)]
+    assert [s is None for s in fast] == [s is None for s in ref]
+    assert sum(s is not None for s in fast) > 20
+    for a, b in zip(fast, ref, strict=True):
+        if a is not None:
+            assert np.allclose(list(a.joints.values()), list(b.joints.values()), atol=1e-9)
+            assert np.allclose(a.T_world_camera, b.T_world_camera, atol=1e-9)
+            # acos near 1 turns a rounding of 1e-16 into 1.5e-8 rad
+            assert a.aim_error == pytest.approx(b.aim_error, abs=1e-6)
+
+
+def test_compiled_lines_of_sight_match_the_numpy_one():
+    """The planner's visibility check of all views at once gives line_of_sight's answers."""
+    from services.nbv import topdown
+
+    rng = np.random.default_rng(3)
+    states = rng.choice(np.array([0, 1, 2], np.uint8), size=(40, 30, 20), p=[0.3, 0.67, 0.03])
+    origin = np.array([-0.2, -0.1, 0.0])
+    a = rng.uniform(-0.3, 0.8, (400, 3))
+    b = rng.uniform(-0.3, 0.8, (400, 3))
+    ref = [
+        topdown.line_of_sight(states, origin, 0.02, p, q, 0.15) for p, q in zip(a, b, strict=True)
+    ]
+    got = topdown.lines_of_sight(states, origin, 0.02, a, b, 0.15)
+    assert 0 < sum(ref) < len(ref)
+    assert got.tolist() == ref
