@@ -20,31 +20,12 @@ import math
 import sys
 from pathlib import Path
 
+from avs.commands._args import non_negative_float, non_negative_int
 from avs.commands._transport import add_transport_arguments, connect, settings_from
 from services.adapters.rosbag.bag import BagError, BagFrames, BagReplayConfig
 from services.adapters.rosbag.convert import fixed_camera_pose
 from services.adapters.rosbag.publish import Progress, publish_frames
 from services.common.node import Node
-
-
-def _non_negative(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not (value >= 0 and math.isfinite(value)):
-        raise argparse.ArgumentTypeError(f"must be a number ≥ 0, got {text}")
-    return value
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be ≥ 0, got {value}")
-    return value
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -86,34 +67,42 @@ def register(sub: argparse._SubParsersAction) -> None:
     play = parser.add_argument_group("playback")
     play.add_argument(
         "--rate",
-        type=_non_negative,
+        type=non_negative_float,
         default=1.0,
         metavar="F",
         help="speed factor on the bag's timing (default 1; 0: as fast as possible)",
     )
     play.add_argument(
-        "--start", type=_non_negative, default=0.0, metavar="S", help="skip the bag's first S s"
+        "--start",
+        type=non_negative_float,
+        default=0.0,
+        metavar="S",
+        help="skip the bag's first S s",
     )
     play.add_argument(
-        "--limit", type=_count, default=0, metavar="N", help="stop after N frames (0: all)"
+        "--limit",
+        type=non_negative_int,
+        default=0,
+        metavar="N",
+        help="stop after N frames (0: all)",
     )
     play.add_argument(
         "--max-dt",
-        type=_non_negative,
+        type=non_negative_float,
         default=0.02,
         metavar="S",
         help="largest stamp difference of a colour and a depth image to pair, s (default 0.02)",
     )
     play.add_argument(
         "--depth-scale",
-        type=_non_negative,
+        type=non_negative_float,
         default=None,
         metavar="M",
         help="metres per unit of 16UC1 depth (default 0.001: millimetres)",
     )
     play.add_argument(
         "--depth-range",
-        type=_non_negative,
+        type=non_negative_float,
         nargs=2,
         default=[0.0, 0.0],
         metavar=("MIN", "MAX"),
@@ -121,7 +110,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     play.add_argument(
         "--wait",
-        type=_non_negative,
+        type=non_negative_float,
         default=10.0,
         metavar="S",
         help="wait up to S s for a subscriber before the first frame (default 10)",
