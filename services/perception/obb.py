@@ -8,8 +8,8 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 
+from services.common.sat import boxes_overlap
 from services.perception import kernels
 
 
@@ -111,37 +111,4 @@ def pca_box(points: np.ndarray) -> Box:
 
 def intersect(a: Box, b: Box, epsilon: float = 0.0) -> bool:
     """Do the boxes, each extended by ``epsilon`` on every side, overlap (SAT, 15 axes)?"""
-    return _separated_nowhere(
-        np.ascontiguousarray(a.rotation, np.float64), np.asarray(a.center, np.float64),
-        np.asarray(a.extent, np.float64) / 2 + epsilon,
-        np.ascontiguousarray(b.rotation, np.float64), np.asarray(b.center, np.float64),
-        np.asarray(b.extent, np.float64) / 2 + epsilon,
-    )  # fmt: skip
-
-
-@njit(cache=True)
-def _separated_nowhere(A, ca, ha, B, cb, hb) -> bool:
-    """SAT over the 15 axes (3 + 3 face normals, 9 edge crosses; near-zero crosses skipped):
-    no axis separates the boxes (half extents ha, hb)."""
-    d = cb - ca
-    axes = np.empty((15, 3))
-    for i in range(3):
-        axes[i] = A[:, i]
-        axes[3 + i] = B[:, i]
-        for j in range(3):
-            u, v = A[:, i], B[:, j]
-            axes[6 + 3 * i + j, 0] = u[1] * v[2] - u[2] * v[1]
-            axes[6 + 3 * i + j, 1] = u[2] * v[0] - u[0] * v[2]
-            axes[6 + 3 * i + j, 2] = u[0] * v[1] - u[1] * v[0]
-    for k in range(15):
-        n = np.sqrt(np.sum(axes[k] ** 2))
-        if n <= 1e-9:
-            continue
-        axis = axes[k] / n
-        ra, rb = 0.0, 0.0
-        for i in range(3):
-            ra += abs(np.sum(axis * A[:, i])) * ha[i]
-            rb += abs(np.sum(axis * B[:, i])) * hb[i]
-        if abs(np.sum(axis * d)) > ra + rb:
-            return False
-    return True
+    return boxes_overlap(a.rotation, a.center, a.extent, b.rotation, b.center, b.extent, epsilon)

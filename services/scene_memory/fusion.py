@@ -45,6 +45,7 @@ from schemas import (
     SphereModel,
     SupportEdge,
 )
+from services.common.sat import boxes_overlap, pairs_overlap
 
 MAX_POINTS = 6000  # points a memory primitive keeps (voxel-downsampled)
 BOX_GROWTH = 0.01  # m: points this far beyond a box's face make it grow
@@ -109,13 +110,7 @@ def inlier(points: np.ndarray, obb: Obb, margin: float) -> float:
 
 def obbs_intersect(a: Obb, b: Obb, epsilon: float = 0.0) -> bool:
     """Separating-axis test of two OBBs, each grown by ``epsilon``."""
-    A, B = a.rotation, b.rotation
-    axes = np.concatenate([A.T, B.T, np.cross(A.T[:, None, :], B.T[None, :, :]).reshape(9, 3)])
-    n = np.linalg.norm(axes, axis=1)
-    axes = axes[n > 1e-9] / n[n > 1e-9, None]
-    ra = np.abs(axes @ A) @ (a.extent / 2 + epsilon)
-    rb = np.abs(axes @ B) @ (b.extent / 2 + epsilon)
-    return bool(np.all(np.abs(axes @ (b.center - a.center)) <= ra + rb))
+    return boxes_overlap(a.rotation, a.center, a.extent, b.rotation, b.center, b.extent, epsilon)
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -621,15 +616,17 @@ class Fusion:
         return float(np.prod(np.delete(e, k)))
 
     def spatial_edges(self) -> list[tuple[int, int]]:
+        """Pairs of primitives whose OBBs, grown by ε, overlap (every pair in one kernel)."""
         ids = sorted(self.prims)
-        return [
-            (a, b)
-            for i, a in enumerate(ids)
-            for b in ids[i + 1 :]
-            if obbs_intersect(
-                self.prims[a].primitive.obb, self.prims[b].primitive.obb, self.config.epsilon
-            )
-        ]
+        if len(ids) < 2:
+            return []
+        obbs = [self.prims[i].primitive.obb for i in ids]
+        hit = pairs_overlap(
+            np.array([o.rotation for o in obbs]), np.array([o.center for o in obbs]),
+            np.array([o.extent for o in obbs]), self.config.epsilon,
+        )  # fmt: skip
+        a, b = np.nonzero(np.triu(hit, 1))
+        return [(ids[i], ids[j]) for i, j in zip(a.tolist(), b.tolist(), strict=True)]
 
     def scene_model(
         self,

@@ -30,6 +30,7 @@ from schemas import (
     decode,
     encode,
 )
+from services.common import sat
 from services.common.frames import usable_depth_frame
 from services.common.node import Node
 from services.common.realtime import BACKGROUND
@@ -79,6 +80,7 @@ class SceneMemoryNode:
         if standby is None:
             raise SystemExit(0)  # stopped while standing by
         occupancy.warm_up()  # the kernels before the first frame, not with it
+        sat.warm_up()
         if settings.registration:
             warm_up()
         self.store = Store(settings.data_dir)
