@@ -36,6 +36,13 @@ class SceneMemorySettings(ServiceSettings):
     max_replay_s: float = Field(
         0.5, gt=0, description="a snapshot once the journal since the last took this long"
     )
+    snapshot_share: float = Field(
+        0.1,
+        gt=0,
+        le=1,
+        description="… but snapshots take at most this share of the time: a "
+        "restart replays at most max(max_replay_s, the last snapshot's time × (1/share − 1))",
+    )
     registration: bool = Field(
         False,
         description="register each integrated frame against the cloud so far (thesis A.5: "

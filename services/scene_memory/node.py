@@ -45,7 +45,7 @@ from services.scene_memory.memory import (
     registered_cloud,
 )
 from services.scene_memory.occupancy import OccupancyConfig
-from services.scene_memory.persistence import Store
+from services.scene_memory.persistence import Store, snapshot_due
 from services.scene_memory.registration import RegistrationConfig, warm_up
 
 log = logging.getLogger("avs.scene_memory")
@@ -85,6 +85,7 @@ class SceneMemoryNode:
             warm_up()
         self.store = Store(settings.data_dir)
         self.replay_s = 0.0  # time the updates since the last snapshot took to apply
+        self.snapshot_s = 0.0  # time the last snapshot took to write
         self.memory, self.n = self._restore()
         k = node.keys
         self.out_scene = node.publisher(k.scene())
@@ -143,15 +144,15 @@ class SceneMemoryNode:
             self.store.append(self.n, kind, payload)  # journaled before it is applied
             t0 = time.perf_counter()
             self._apply(self.memory, kind, payload)
-            # what a restart would replay is bounded: a snapshot every so many updates, or
-            # sooner once applying the journal since the last one took max_replay_s
             self.replay_s += time.perf_counter() - t0
-            if (
-                self.n % self.settings.snapshot_every == 0
-                or self.replay_s >= self.settings.max_replay_s
-            ):
+            s = self.settings
+            if snapshot_due(self.n, self.replay_s, self.snapshot_s, s.snapshot_every,
+                            s.max_replay_s, s.snapshot_share):  # fmt: skip
+                t1 = time.perf_counter()
                 self.store.snapshot(self.memory, self.n)
+                self.snapshot_s = time.perf_counter() - t1
                 self.replay_s = 0.0
+                self.node.metrics.gauge("snapshot_ms", self.snapshot_s * 1e3)
             for key, value in self.memory.timings_ms.items():
                 self.node.metrics.gauge(key, value)
 

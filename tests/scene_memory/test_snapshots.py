@@ -96,3 +96,25 @@ def _with_version(version: int) -> bytes:
         {"version": version, "n": 1, "tree": None, "arrays": _empty_npz()}, use_bin_type=True
     )
     return state_file.MAGIC + hashlib.sha256(body).digest() + body
+
+
+def test_snapshots_take_at_most_their_share_of_the_time():
+    """Updates of 0.1 s each and a 0.35 s snapshot (a kitchen map's): with the default share
+    (10 %) a snapshot comes once the journal holds 3.15 s of updates, not every 0.5 s; cheap
+    snapshots keep the old bounds (every 20 updates or 0.5 s of journal)."""
+    from services.scene_memory.persistence import snapshot_due
+
+    def snapshots(apply_s: float, snapshot_s: float, updates: int = 400) -> list[int]:
+        written, replay, last = [], 0.0, 0.0
+        for n in range(1, updates + 1):
+            replay += apply_s
+            if snapshot_due(n, replay, last, every=20, max_replay_s=0.5, share=0.1):
+                written.append(n)
+                replay, last = 0.0, snapshot_s
+        return written
+
+    slow = snapshots(0.1, 0.35)
+    assert slow[0] == 5 and np.all(np.diff(slow) == 32), slow  # 32 × 0.1 s ≥ 9 × 0.35 s
+    cheap = snapshots(0.01, 0.002)
+    assert cheap[:3] == [20, 40, 60]  # every 20 updates: 0.2 s of journal, 0.002 s to write
+    assert snapshots(0.2, 0.01)[:3] == [3, 6, 9]  # every 0.5 s of journal
