@@ -95,6 +95,7 @@ SCRATCH = (
     "_hit",
     "_cleared",
     "_dirty",
+    "_saturated",
     "_rays",
     "_keys",
     "_ray_scratch",
@@ -276,7 +277,9 @@ def _start(o, u, lo, n, voxel):
 
 
 @njit(cache=True, nogil=True)
-def _walk(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, end, max_range, patience):
+def _walk(
+    visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, end, max_range, patience
+):
     """One ray (3D DDA, Amanatides & Woo), walked from its end back to the sensor: sets the
     visited bit of every voxel on the way from the sensor to a return, or to the cut at
     ``max_range``, excluding the end's own voxel (OctoMap's ``computeRayKeys``), and stops
@@ -284,6 +287,8 @@ def _walk(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, end, max_range
     joined space that the coarser passes (``_level``) cleared, which it would only cross
     again. ``cleared`` is the visited set as the pass began, so that where a ray stops does
     not depend on which rays of its own pass the other threads walked first.
+    A ``saturated`` block (every voxel free at the clamp: a miss changes none of them) is
+    crossed in one step, its voxels counted as cleared ones.
     Threads share the bit set: the first visit sets the bit atomically, later ones only read.
     Scalars only: no array is allocated per ray."""
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
@@ -328,19 +333,38 @@ def _walk(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, end, max_range
     sz, tmz, tdz = dda_axis(qz, -uz, voxel, jz)
     ix, iy, iz = jx, jy, jz
     run = 0
-    for k in range(n):
+    k = 0
+    while k < n:
         if k > 0 or not end_inside:
             block, w, bit = _slot(ix, iy, iz, by, bz)
-            if not visited[w] & bit:
-                _atomic_or(visited, w, bit)
-                if dirty[block] == 0:
-                    dirty[block] = 1
-            if cleared[w] & bit:
-                run += 1
-                if run == patience:
+            if saturated[block]:
+                # to the block's last voxel on the ray, then the step out of it below
+                bx_, by_b, bz_b = ix >> 3, iy >> 3, iz >> 3
+                nxl = min((bx_ + 1) << 3, nx) - 1 - ix if sx > 0 else ix - (bx_ << 3)
+                nyl = min((by_b + 1) << 3, ny) - 1 - iy if sy > 0 else iy - (by_b << 3)
+                nzl = min((bz_b + 1) << 3, nz) - 1 - iz if sz > 0 else iz - (bz_b << 3)
+                leave = min(tmx + nxl * tdx, tmy + nyl * tdy, tmz + nzl * tdz)
+                kx = 0 if tmx >= leave else min(int((leave - tmx) / tdx) + 1, nxl)
+                ky = 0 if tmy >= leave else min(int((leave - tmy) / tdy) + 1, nyl)
+                kz = 0 if tmz >= leave else min(int((leave - tmz) / tdz) + 1, nzl)
+                ix, iy, iz = ix + sx * kx, iy + sy * ky, iz + sz * kz
+                tmx, tmy, tmz = tmx + tdx * kx, tmy + tdy * ky, tmz + tdz * kz
+                k += kx + ky + kz
+                run += 1 + kx + ky + kz
+                if patience and run >= patience:
                     return
             else:
-                run = 0
+                if not visited[w] & bit:
+                    _atomic_or(visited, w, bit)
+                    if dirty[block] == 0:
+                        dirty[block] = 1
+                if cleared[w] & bit:
+                    run += 1
+                    if run == patience:
+                        return
+                else:
+                    run = 0
+        k += 1
         # branch-free step along the axis of the nearest boundary: which axis it is follows
         # no pattern the branch predictor could learn
         cx = tmx <= tmy and tmx <= tmz
@@ -410,23 +434,29 @@ def _unknown_on_rays(L, lo, voxel, origin, ends, box):
 
 @njit(cache=True, nogil=True, parallel=True)
 def _free(
-    visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks, patience
-):
+    visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks,
+    patience,
+):  # fmt: skip
     """Second pass: the rays in parallel chunks of neighbouring rays (which share voxels)."""
     per = (rays.shape[0] + chunks - 1) // chunks
     for c in prange(chunks):
         for r in range(c * per, min(rays.shape[0], (c + 1) * per)):
             _walk(
-                visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range,
-                patience,
+                visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, rays[r],
+                max_range, patience,
             )  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
-def _free_serial(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, patience):
+def _free_serial(
+    visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, patience
+):
     """``_free`` on the calling thread."""
     for r in range(rays.shape[0]):
-        _walk(visited, cleared, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range, patience)
+        _walk(
+            visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, rays[r], max_range,
+            patience,
+        )  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
@@ -479,6 +509,23 @@ def _apply(L, visited, hit, cleared, blocks, d_hit, d_miss, d_min, d_max):
             L, visited, hit, cleared, blocks[k], by, bz, d_hit, d_miss, d_min, d_max
         )
     return counts.sum()
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _saturate(L, saturated, blocks, d_min):
+    """``saturated[b]``: every voxel of block b (within the grid) is free at the clamp
+    ``d_min`` (a miss leaves it as it is), for the listed ``blocks``."""
+    nx, ny, nz = L.shape
+    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
+    for k in prange(blocks.shape[0]):
+        b = blocks[k]
+        x0, y0, z0 = (b // (by * bz)) << 3, ((b // bz) % by) << 3, (b % bz) << 3
+        full = 1
+        for x in range(x0, min(x0 + 8, nx)):
+            for y in range(y0, min(y0 + 8, ny)):
+                for z in range(z0, min(z0 + 8, nz)):
+                    full &= L[x, y, z] == d_min
+        saturated[b] = full
 
 
 @njit(cache=True, nogil=True)
@@ -538,6 +585,7 @@ class OccupancyMap:
         self._hit = np.zeros(blocks * 64, np.uint8)
         self._cleared = np.zeros(blocks * 64, np.uint8)
         self._dirty = np.zeros(blocks, np.uint8)
+        self._saturated = np.zeros(blocks, np.uint8)
         self._rays = np.zeros((0, 3), np.float64)
         self._keys = np.zeros(0, np.int64)
         self._ray_scratch = np.zeros((0, 3), np.float64)
@@ -553,6 +601,8 @@ class OccupancyMap:
         c = self.config
         logits = (c.p_hit, c.p_miss, c.clamp_min, c.clamp_max)
         self._milli = tuple(round(logit(p) * SCALE) for p in logits)
+        if hasattr(self, "L"):  # restored: which blocks the map's values saturate
+            _saturate(self.L, self._saturated, np.arange(blocks, dtype=np.int64), self._milli[2])
 
     def __getstate__(self) -> dict:
         """Snapshots hold the known voxels only (a bit mask and their values) and no scratch:
@@ -617,7 +667,7 @@ class OccupancyMap:
                 # the first pass walks whole rays: nothing is cleared before it; the last
                 # one's rays each run beside one cast already, a finest cell away
                 patience = 0 if k == 0 else PATIENCE_REST if k == last else PATIENCE
-                walk = (self._visited, self._cleared, *grid[2:])
+                walk = (self._visited, self._cleared, self._saturated, *grid[2:])
                 # in rounds (every SUBPASSES-th ray), each stopping on what the ones before
                 # it cleared; a small pass at once and on this thread (no wake-ups)
                 step = SUBPASSES if patience and b - a >= SUBPASSES * SMALL_PASS else 1
@@ -633,6 +683,7 @@ class OccupancyMap:
         blocks = np.flatnonzero(self._dirty)
         self._dirty[blocks] = 0
         count = _apply(self.L, self._visited, self._hit, self._cleared, blocks, *self._milli)
+        _saturate(self.L, self._saturated, blocks, self._milli[2])
         self.frames += 1
         self.version += 1
         return int(count)

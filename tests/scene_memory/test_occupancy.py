@@ -209,3 +209,44 @@ def test_the_gain_a_frame_realises_is_counted_both_ways():
     )  # a ray may graze an edge
     memory.integrate(make_frame(depth, T))
     assert memory.realised_gain == {"volume": 0.0, "rays": 0.0}
+
+
+def test_rays_cross_saturated_free_blocks_in_one_step_and_change_nothing(monkeypatch):
+    """Rays cross a block whose voxels are all free at the clamp (where a miss is a no-op) in
+    one step. With every ray walked whole (no early stop), eight scans from a moving camera give
+    exactly the map they give voxel by voxel; an object then put into that saturated free
+    space is updated by every hit (occupied after the third)."""
+    from services.scene_memory import occupancy
+
+    monkeypatch.setattr(occupancy, "PATIENCE", 0)
+    monkeypatch.setattr(occupancy, "PATIENCE_REST", 0)
+    rng = np.random.default_rng(5)
+    base = np.full((H, W), 1.79, np.float32)
+    for _ in range(6):
+        r, c = rng.integers(0, H - 40), rng.integers(0, W - 40)
+        base[r : r + rng.integers(20, 80), c : c + rng.integers(20, 100)] = rng.uniform(0.6, 1.5)
+    scans = [(base + rng.normal(0, 0.004, base.shape).astype(np.float32),
+              camera_facing_x(0.2 + 0.01 * i, 1.0 + 0.005 * i)) for i in range(8)]  # fmt: skip
+    skipping, walking = (OccupancyMap(LO, HI, OccupancyConfig(voxel=0.02)) for _ in range(2))
+    for depth, T in scans:
+        integrate(skipping, depth, T)
+        integrate(walking, depth, T)
+        walking._saturated[:] = 0  # this one never skips
+    assert skipping._saturated.sum() > 100  # the free space before the boxes saturated
+    assert np.array_equal(skipping.L, walking.L)
+    # a box appears 0.43 m before the camera, in free space that saturated
+    spot = np.array([0.71, 0.0, 1.0])
+    i = np.floor((spot - LO) / 0.02).astype(int)
+    by, bz = (np.array(skipping.shape[1:]) + 7) // 8
+    assert skipping._saturated[((i[0] >> 3) * by + (i[1] >> 3)) * bz + (i[2] >> 3)]
+    depth = scans[-1][0].copy()
+    depth[110:170, 130:190] = 0.43
+    for k in range(3):  # from the free clamp, the third hit makes it occupied
+        for m in (skipping, walking):
+            integrate(m, depth, scans[-1][1])
+        assert state(skipping, spot) == (STATE_OCCUPIED if k == 2 else STATE_FREE)
+    assert np.array_equal(skipping.L, walking.L)
+    # a snapshot rebuilds the saturated blocks from the values
+    restored = OccupancyMap.__new__(OccupancyMap)
+    restored.__setstate__(skipping.__getstate__())
+    assert np.array_equal(restored._saturated, skipping._saturated)
