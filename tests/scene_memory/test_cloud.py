@@ -13,8 +13,10 @@ from services.scene_memory.state import dump, load
 
 
 def _reference(frames, cap: int):
-    cloud, colours, seen = np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(
-        (0, 3), np.float32
+    cloud, colours, seen = (
+        np.zeros((0, 3), np.float32),
+        np.zeros((0, 3), np.uint8),
+        np.zeros((0, 3), np.float32),
     )
     for pts, rgb, eye in frames:
         merged = np.concatenate([cloud, pts])
@@ -31,7 +33,7 @@ def test_incremental_cloud_equals_whole_cloud_dedup(monkeypatch):
     rng = np.random.default_rng(7)
     frames = []
     for i in range(12):  # overlapping 0.3 m boxes drifting along x, 1500 points each
-        pts = (rng.uniform(0, 0.3, (1500, 3)) + [0.05 * i, 0, 0]).astype(np.float32)
+        pts = (rng.uniform(0, 0.3, (1500, 3)) + np.array([0.05 * i, 0, 0])).astype(np.float32)
         frames.append((pts, rng.integers(0, 255, (1500, 3), dtype=np.uint8), rng.normal(size=3)))
     m = SceneMemory()
     for k, (pts, rgb, eye) in enumerate(frames):
