@@ -99,9 +99,9 @@ class SceneMemoryNode:
         # the background's nice, after perception and rendering (a keyframe skipped costs a
         # little map detail, an observation or a frame late costs the whole pipeline's rate)
         node.subscribe(k.observation(), SceneObservation, self.on_observation, queue=OBS_QUEUE,
-                       nice=BACKGROUND)  # fmt: skip
+                       nice=0)  # fmt: skip
         node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame, latest_only=True,
-                       nice=BACKGROUND)  # fmt: skip
+                       nice=0)  # fmt: skip
         node.serve(k.scene(), lambda _r: self.scene())
         node.serve(k.occupancy("stats"), self.on_stats, BoxQuery)
         node.serve(k.occupancy("slice"), self.on_slice, BoxQuery)

@@ -520,12 +520,19 @@ def _saturate(L, saturated, blocks, d_min):
     for k in prange(blocks.shape[0]):
         b = blocks[k]
         x0, y0, z0 = (b // (by * bz)) << 3, ((b // bz) % by) << 3, (b % bz) << 3
-        full = 1
-        for x in range(x0, min(x0 + 8, nx)):
-            for y in range(y0, min(y0 + 8, ny)):
-                for z in range(z0, min(z0 + 8, nz)):
-                    full &= L[x, y, z] == d_min
-        saturated[b] = full
+        saturated[b] = _all_at(L, x0, y0, z0, min(x0 + 8, nx), min(y0 + 8, ny), min(z0 + 8, nz),
+                               d_min)  # fmt: skip
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _all_at(L, x0, y0, z0, x1, y1, z1, value):
+    """Every voxel of the box at ``value`` (stops at the first that is not: most are not)."""
+    for x in range(x0, x1):
+        for y in range(y0, y1):
+            for z in range(z0, z1):
+                if L[x, y, z] != value:
+                    return 0
+    return 1
 
 
 @njit(cache=True, nogil=True)
