@@ -24,6 +24,9 @@ class SceneMemorySettings(ServiceSettings):
     roi_min: list[float] | None = Field(None, description="default box of occupancy stats")
     roi_max: list[float] | None = None
     max_range: float = Field(3.0, gt=0, description="rays clear space up to this range, m")
+    map_stride: int = Field(
+        2, ge=1, description="every n-th pixel of a depth frame, each way, casts a ray into the map"
+    )
     keyframe_move: float = Field(
         0.03, ge=0, description="a depth frame is integrated once the camera moved this far, m"
     )

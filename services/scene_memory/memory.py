@@ -32,6 +32,11 @@ class MemoryConfig:
     bounds_max: tuple[float, float, float] = (4.0, 2.5, 2.2)
     cloud_voxel: float = 0.01
     depth_min: float = 0.35
+    #: every ``map_stride``-th pixel of a depth frame, each way, casts a ray into the occupancy
+    #: map: at 2, 7 mm apart at 2 m (a 1 cm voxel's face still gets a return up to 2.8 m), a
+    #: quarter of the returns to merge and a third less to walk; the free space the same within
+    #: 0.1 % on a kitchen pan, the occupied voxels fewer (a surface's noise less thick)
+    map_stride: int = 2
     #: keyframes: a depth frame is integrated once the camera moved this far (m) or turned
     #: this much (degrees) since the last integrated one; 0 and 0 integrate every frame
     keyframe_move: float = 0.0
@@ -118,9 +123,11 @@ class SceneMemory:
             rays = self.occupancy.unknown_on_rays(
                 frame.depth, (K.fx, K.fy, K.cx, K.cy), T, roi, self.config.depth_min, max_range
             )
+        k = self.config.map_stride
         n = self.occupancy.integrate_depth(
-            frame.depth, K.fx, K.fy, K.cx, K.cy, T, self.config.depth_min, max_range
-        )
+            frame.depth[::k, ::k], K.fx / k, K.fy / k, K.cx / k, K.cy / k, T,
+            self.config.depth_min, max_range,
+        )  # fmt: skip
         if roi is not None:
             volume = unknown - self.occupancy.counts(*roi)[0]
             self.realised_gain = {"volume": float(volume), "rays": rays}

@@ -33,7 +33,6 @@ from schemas import (
 from services.common import sat
 from services.common.frames import usable_depth_frame
 from services.common.node import Node
-from services.common.realtime import BACKGROUND
 from services.common.standby import wait_for_turn
 from services.scene_memory import occupancy
 from services.scene_memory.config import SceneMemorySettings
@@ -62,6 +61,7 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
             fusion=FusionConfig(mode=s.fusion),
             occupancy=OccupancyConfig(voxel=s.voxel, max_range=s.max_range),
             roi=(tuple(s.roi_min), tuple(s.roi_max)) if s.roi_min and s.roi_max else None,
+            map_stride=s.map_stride,
             keyframe_move=s.keyframe_move,
             keyframe_turn=s.keyframe_turn,
             registration=RegistrationConfig() if s.registration else None,
