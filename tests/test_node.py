@@ -200,7 +200,7 @@ def test_garbage_cannot_evict_the_newest_valid_sample(node, client):
 
 def test_an_input_thread_runs_at_the_nice_it_was_given(node, client):
     """``nice``: the input's thread at ordinary scheduling and that nice, whatever its creator's
-    (the scene memory's map work at realtime.BACKGROUND, after perception and rendering)."""
+    (deferrable work at realtime.BACKGROUND, after perception and rendering)."""
     keys = Keys()
     nices: list[int] = []
 

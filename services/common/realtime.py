@@ -26,8 +26,9 @@ NICE = -10
 #: the nice of the camera-rate path (perception's worker): after the real-time loops, before
 #: rendering, tools and the map. A frame perceived late costs the whole pipeline its rate.
 FOREGROUND = -5
-#: the nice of deferrable work (map integration, fusion): it yields to perception and rendering,
-#: which yield to the real-time loops
+#: the nice of deferrable work: it yields to perception and rendering, which yield to the
+#: real-time loops. (The scene memory's map and fusion ran here until the map became part of the
+#: end-to-end rate, issue 18: they run at nice 0 now.)
 BACKGROUND = 10
 
 

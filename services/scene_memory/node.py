@@ -96,8 +96,8 @@ class SceneMemoryNode:
         self.obs_camera = REGISTERED_CAMERA if settings.fusion != "sg" else settings.camera
         # the work runs on the inputs' own threads, never in Zenoh's callbacks: observations
         # in order (a few waiting at most), depth frames newest first (one at a time); both at
-        # the background's nice, after perception and rendering (a keyframe skipped costs a
-        # little map detail, an observation or a frame late costs the whole pipeline's rate)
+        # nice 0 beside rendering, after perception's worker (a frame is fused once its depth is
+        # in the map: the map is on the pipeline's path, not deferrable)
         node.subscribe(k.observation(), SceneObservation, self.on_observation, queue=OBS_QUEUE,
                        nice=0)  # fmt: skip
         node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame, latest_only=True,
