@@ -113,11 +113,15 @@ def parse_scale(text: str) -> dict[str, int]:
 
 def service_env(args: argparse.Namespace) -> dict[str, str]:
     """Settings the launcher hands to the services: the scene memory's data directory, and the
-    sensor models with view registration (``--noise``) unless the environment says otherwise."""
+    sensor models with view registration (``--noise``) and perception's rate unless the
+    environment says otherwise."""
     on = str(getattr(args, "noise", "on") == "on").lower()
     keys = ("AVS_SIM_NOISE", "AVS_SIM_SENSORS", "AVS_SCENE_MEMORY_REGISTRATION")
     noise = {k: on for k in keys if k not in os.environ}
-    return noise | {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
+    # perception at most 5 frames a second: at the camera's 15 fps it alone would take the CPU
+    # the map needs to keep up (issue 18's pipeline benchmark); 0 in the environment: every one
+    rate = {} if "AVS_PERCEPTION_MAX_RATE" in os.environ else {"AVS_PERCEPTION_MAX_RATE": "5"}
+    return noise | rate | {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
 
 
 def chosen_services(names: str) -> list[ServiceInfo]:

@@ -28,6 +28,12 @@ class PerceptionSettings(ServiceSettings):
     queue: int = Field(
         2, ge=1, description="frames this worker owns and has not begun, at most (older: stale)"
     )
+    max_rate: float = Field(
+        0.0,
+        ge=0,
+        description="frames this worker perceives a second at most, the newest when "
+        "its time comes (the others dropped as 'rate', counted); 0: every frame",
+    )
     realtime: bool = Field(
         True,
         description="the worker at nice -5 where permitted: after the real-time loops, before "

@@ -5,8 +5,11 @@ rendezvous hashing of (camera, seq) over the live instances' liveliness tokens p
 (services/common/membership.py); the others skip it. An instance joining or leaving moves only
 the frames it wins or held. Each worker keeps at most ``queue`` of its frames waiting: when it
 falls behind, the oldest is dropped as stale, counted, so it never works on old frames.
-A frame without depth, or larger than ``max_pixels``, is dropped and counted; an empty or
-all-invalid frame gives an observation with no primitives. Observations carry the worker.
+With ``max_rate`` a worker perceives at most that many frames a second, the newest each time
+(``avs up`` runs it at 5: a camera at 15 fps would otherwise leave the map no time); a newer
+frame replaces a waiting one, which is counted as dropped for ``rate`` (by design: no
+warning). A frame without depth, or larger than ``max_pixels``, is dropped and counted; an
+empty or all-invalid frame gives an observation with no primitives. Observations carry the worker.
 A frame that carries the robot's joint positions has the robot's own body masked out first
 (``self_mask.py``), so the robot never perceives its arms and hands as scene primitives.
 
@@ -19,7 +22,9 @@ the same way, shared and queued with the frames, by the point-set pipeline
 from __future__ import annotations
 
 import logging
+import math
 import threading
+import time
 from collections import deque
 
 import numpy as np
@@ -84,7 +89,11 @@ class PerceptionNode:
         if not self.members.owns(f"{frame.camera}:{frame.seq}"):
             return
         with self.ready:
-            if len(self.pending) >= self.settings.queue:
+            if self.settings.max_rate > 0:  # only the newest is ever taken: it replaces the rest
+                while self.pending:
+                    self.pending.popleft()
+                    self.node.metrics.drop("rate")
+            elif len(self.pending) >= self.settings.queue:
                 stale = self.pending.popleft()
                 self.node.drop("stale", self.key, f"frame {stale.seq} waited too long")
             self.pending.append(frame)
@@ -93,11 +102,16 @@ class PerceptionNode:
     def work(self) -> None:
         if self.settings.realtime:
             foreground("perception's worker")
+        interval = 1.0 / self.settings.max_rate if self.settings.max_rate > 0 else 0.0
+        began = -math.inf
         while not self.node.stopping:
+            if interval:  # at most max_rate frames a second: wait for the next one's time
+                time.sleep(max(0.0, began + interval - time.monotonic()))
             with self.ready:
                 if not self.pending and not self.ready.wait(0.2):
                     continue
                 frame = self.pending.popleft()
+            began = time.monotonic()
             is_cloud = isinstance(frame, CloudFrame)
             try:
                 self.on_cloud(frame) if is_cloud else self.on_frame(frame)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import msgpack
@@ -125,3 +126,32 @@ def _thread_nices(pid: int) -> dict[str, int]:
 def _may_lower_nice() -> bool:
     code = "import os; os.setpriority(os.PRIO_PROCESS, 0, -1)"
     return subprocess.run([sys.executable, "-c", code], capture_output=True).returncode == 0
+
+
+def test_max_rate_perceives_the_newest_frame_at_that_rate(client, router, procs, clutter_frame):
+    """``--max-rate 4`` against frames at 20 a second for 3 s: about 4 observations a second,
+    each of the newest frame when its time came (never one that waited), and every frame
+    passed over counted as dropped for ``rate``: observed + dropped = sent."""
+    observations: list[SceneObservation] = []
+    lock = threading.Lock()
+
+    def keep(sample):
+        with lock:
+            observations.append(decode(sample.payload.to_bytes(), SceneObservation))
+
+    client.declare_subscriber(KEYS.observation(), keep)
+    procs.python(["-m", "services.perception", "--instance", "p0", "--max-rate", "4"],
+                 env=avs_env(router))  # fmt: skip
+    frames = matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60)
+    frames.put(encode(clutter_frame.model_copy(update={"seq": 0})))  # warm: the first frame
+    wait_for(lambda: len(observations) == 1, 60, "the first observation")
+    sent, t0 = 60, time.monotonic()
+    for seq in range(1, sent + 1):
+        frames.put(encode(clutter_frame.model_copy(update={"seq": seq})))
+        time.sleep(max(0.0, t0 + seq / 20 - time.monotonic()))
+    wait_for(lambda: observations[-1].frame_seq == sent, 30, "the last frame's observation")
+    seqs = [o.frame_seq for o in observations[1:]]
+    assert 9 <= len(seqs) <= 14, seqs  # 3 s at 4 a second (+ the last frame, which is newest)
+    assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+    assert np.diff(seqs).max() <= 8, seqs  # the newest frame each time: 5 frames a period
+    wait_for(lambda: _metrics(client).dropped.get("rate", 0) + len(seqs) == sent, 10, "counts")
