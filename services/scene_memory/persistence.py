@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 import msgpack
@@ -138,6 +139,34 @@ class Store:
         if self.journal_path.exists():
             os.replace(self.journal_path, self.previous_journal)
         os.replace(tmp, self.snapshot_path)
+        self._sync_directory()
+
+    def begin_snapshot(self, state: object, n: int) -> Callable[[], None]:
+        """``snapshot`` in two parts: now (the state must stand still) the state is captured
+        and the journal rotated (records after ``n`` go to a new one); the returned call makes
+        the file and puts it in place, while updates go on (a thread of its own). Until it has,
+        the latest snapshot with both journals restores everything (the previous snapshot has
+        lost its journal: a crash in that window must not also meet a damaged latest one)."""
+        tree, arrays = state_file.capture(state)
+        self.close()
+        if self.journal_path.exists():
+            os.replace(self.journal_path, self.previous_journal)
+        self._sync_directory()
+
+        def finish() -> None:
+            tmp = self.snapshot_path.with_suffix(".tmp")
+            with open(tmp, "wb") as f:
+                f.write(state_file.serialise(tree, arrays, n))
+                f.flush()
+                os.fsync(f.fileno())
+            if self.snapshot_path.exists():
+                os.replace(self.snapshot_path, self.previous_path)
+            os.replace(tmp, self.snapshot_path)
+            self._sync_directory()
+
+        return finish
+
+    def _sync_directory(self) -> None:
         fd = os.open(self.directory, os.O_RDONLY)
         try:
             os.fsync(fd)  # the renames themselves

@@ -130,8 +130,19 @@ def _key(k: Any) -> Any:
 
 def dump(state: Any, n: int) -> bytes:
     """The file's bytes for ``state`` as of update ``n``."""
+    return serialise(*capture(state), n)
+
+
+def capture(state: Any) -> tuple[Any, list[np.ndarray]]:
+    """``state`` as a tree and its arrays (copies): what the file will hold, taken while the
+    state stands still; ``serialise`` makes the bytes of it later, while the state changes."""
     arrays: list[np.ndarray] = []
     tree = _to_tree(state, arrays)
+    return tree, [np.array(a, copy=True) for a in arrays]
+
+
+def serialise(tree: Any, arrays: list[np.ndarray], n: int) -> bytes:
+    """The file's bytes of a ``capture`` as of update ``n``."""
     buffer = io.BytesIO()
     np.savez(buffer, **{f"a{i}": a for i, a in enumerate(arrays)})
     body = msgpack.packb(

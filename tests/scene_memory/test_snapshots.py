@@ -118,3 +118,38 @@ def test_snapshots_take_at_most_their_share_of_the_time():
     cheap = snapshots(0.01, 0.002)
     assert cheap[:3] == [20, 40, 60]  # every 20 updates: 0.2 s of journal, 0.002 s to write
     assert snapshots(0.2, 0.01)[:3] == [3, 6, 9]  # every 0.5 s of journal
+
+
+@pytest.mark.parametrize("crash", ["while_writing", "after"])
+def test_a_snapshot_written_while_updates_go_on_restores_everything(
+    tmp_path, updates, memories, crash
+):
+    """``begin_snapshot`` captures the state of update 8 and rotates the journal; updates 9-12
+    are journaled (and applied to the live memory) before the file is made. A crash before it
+    is in place restores from the snapshot of update 4 and both journals; after, from update
+    8's snapshot: the state of all 12 updates either way, and the capture is update 8's state
+    (not what the memory became while it was written)."""
+    _, full = memories
+    store = Store(tmp_path)
+    live = reference([])
+    for n, (kind, message) in enumerate(updates, start=1):
+        store.append(n, kind, encode(message))
+        SceneMemoryNode._apply(live, kind, encode(message))
+        if n == 4:
+            store.snapshot(reference(updates[:n]), n)
+        if n == 8:
+            finish = store.begin_snapshot(live, n)
+    store.close()
+    if crash == "after":
+        finish()
+    state, n, records = Store(tmp_path).load()
+    assert n == (8 if crash == "after" else 4)
+    assert [r[0] for r in records] == list(range(n + 1, 13))
+    if crash == "after":
+        eight = reference(updates[:8])
+        assert summary(state.scene(8, 8.0)) == summary(eight.scene(8, 8.0))
+        assert np.array_equal(state.occupancy.L, eight.occupancy.L)
+    for _, kind, payload in records:
+        SceneMemoryNode._apply(state, kind, payload)
+    assert summary(state.scene(12, 12.0)) == summary(full.scene(12, 12.0))
+    assert state.occupancy.counts() == full.occupancy.counts()
