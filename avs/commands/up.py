@@ -118,9 +118,11 @@ def service_env(args: argparse.Namespace) -> dict[str, str]:
     on = str(getattr(args, "noise", "on") == "on").lower()
     keys = ("AVS_SIM_NOISE", "AVS_SIM_SENSORS", "AVS_SCENE_MEMORY_REGISTRATION")
     noise = {k: on for k in keys if k not in os.environ}
-    # perception at most 5 frames a second: at the camera's 15 fps it alone would take the CPU
-    # the map needs to keep up (issue 18's pipeline benchmark); 0 in the environment: every one
-    rate = {} if "AVS_PERCEPTION_MAX_RATE" in os.environ else {"AVS_PERCEPTION_MAX_RATE": "5"}
+    # perception at most 2 frames a second: each observation costs perception 40-60 ms and its
+    # fusion 30-60 ms more of the 0.8 core that rendering, physics and the 1 kHz gaze loop
+    # leave on 2 cores, which the map needs to keep up with the camera (issue 18's pipeline
+    # benchmark); AVS_PERCEPTION_MAX_RATE=0 in the environment: every frame
+    rate = {} if "AVS_PERCEPTION_MAX_RATE" in os.environ else {"AVS_PERCEPTION_MAX_RATE": "2"}
     return noise | rate | {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
 
 

@@ -6,10 +6,11 @@ rendezvous hashing of (camera, seq) over the live instances' liveliness tokens p
 the frames it wins or held. Each worker keeps at most ``queue`` of its frames waiting: when it
 falls behind, the oldest is dropped as stale, counted, so it never works on old frames.
 With ``max_rate`` a worker perceives at most that many frames a second, the newest each time
-(``avs up`` runs it at 5: a camera at 15 fps would otherwise leave the map no time); a newer
-frame replaces a waiting one, which is counted as dropped for ``rate`` (by design: no
-warning). A frame without depth, or larger than ``max_pixels``, is dropped and counted; an
-empty or all-invalid frame gives an observation with no primitives. Observations carry the worker.
+(``avs up`` runs it at 2: at 15 fps it and the fusion of its observations would leave the map
+no time on 2 cores); a newer frame replaces a waiting one, which is counted as dropped for
+``rate`` (by design: no warning). A frame without depth, or larger than ``max_pixels``, is
+dropped and counted; an empty or all-invalid frame gives an observation with no primitives.
+Observations carry the worker.
 A frame that carries the robot's joint positions has the robot's own body masked out first
 (``self_mask.py``), so the robot never perceives its arms and hands as scene primitives.
 
