@@ -34,12 +34,8 @@ def full_frame() -> RgbdFrame:
     return clutter_frame(640, 480, seq=41)
 
 
-def _metrics(client) -> ServiceMetrics:
-    (reply,) = [r.ok for r in client.get(KEYS.metrics("perception", "p0"), timeout=10) if r.ok]
-    return decode(reply.payload.to_bytes(), ServiceMetrics)
-
-
-def test_frames_in_observations_out_and_bad_frames_counted(client, router, procs, clutter_frame):
+def _observations(client) -> list[SceneObservation]:
+    """A list the observations perception publishes are appended to, as they come."""
     observations: list[SceneObservation] = []
     lock = threading.Lock()
 
@@ -48,6 +44,16 @@ def test_frames_in_observations_out_and_bad_frames_counted(client, router, procs
             observations.append(decode(sample.payload.to_bytes(), SceneObservation))
 
     client.declare_subscriber(KEYS.observation(), keep)
+    return observations
+
+
+def _metrics(client) -> ServiceMetrics:
+    (reply,) = [r.ok for r in client.get(KEYS.metrics("perception", "p0"), timeout=10) if r.ok]
+    return decode(reply.payload.to_bytes(), ServiceMetrics)
+
+
+def test_frames_in_observations_out_and_bad_frames_counted(client, router, procs, clutter_frame):
+    observations = _observations(client)
     proc = procs.python(["-m", "services.perception", "--instance", "p0"], env=avs_env(router))
     frames = matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60)
 
@@ -132,14 +138,7 @@ def test_max_rate_perceives_the_newest_frame_at_that_rate(client, router, procs,
     """``--max-rate 4`` against frames at 20 a second for 3 s: about 4 observations a second,
     each of the newest frame when its time came (never one that waited), and every frame
     passed over counted as dropped for ``rate``: observed + dropped = sent."""
-    observations: list[SceneObservation] = []
-    lock = threading.Lock()
-
-    def keep(sample):
-        with lock:
-            observations.append(decode(sample.payload.to_bytes(), SceneObservation))
-
-    client.declare_subscriber(KEYS.observation(), keep)
+    observations = _observations(client)
     procs.python(["-m", "services.perception", "--instance", "p0", "--max-rate", "4"],
                  env=avs_env(router))  # fmt: skip
     frames = matched_publisher(client, KEYS.rgbd("head_rgbd"), timeout=60)
