@@ -73,6 +73,9 @@ class SceneMemoryNode:
     def __init__(self, node: Node, settings: SceneMemorySettings) -> None:
         self.node, self.settings = node, settings
         self.lock = threading.Lock()
+        # observations go before frames (``on_frame`` waits while one is waiting)
+        self.turn = threading.Condition()
+        self.observations_waiting = 0
         # one writer: wait on standby while another instance is active, then restore what
         # it wrote to the shared data directory
         standby = wait_for_turn(node.session, node.keys, "scene_memory", node.instance,
@@ -141,18 +144,22 @@ class SceneMemoryNode:
     def _update(self, kind: str, message) -> None:
         payload = encode(message) if message is not None else b""
         with self.lock:
-            self.n += 1
-            self.store.append(self.n, kind, payload)  # journaled before it is applied
-            t0 = time.perf_counter()
-            self._apply(self.memory, kind, payload)
-            self.replay_s += time.perf_counter() - t0
-            s = self.settings
-            due = snapshot_due(self.n, self.replay_s, self.snapshot_s, s.snapshot_every,
-                               s.max_replay_s, s.snapshot_share)  # fmt: skip
-            if due and (self.writer is None or not self.writer.is_alive()):
-                self._snapshot()
-            for key, value in self.memory.timings_ms.items():
-                self.node.metrics.gauge(key, value)
+            self._apply_update(kind, payload)
+
+    def _apply_update(self, kind: str, payload: bytes) -> None:
+        """Journal, apply, snapshot when due (the caller holds the lock)."""
+        self.n += 1
+        self.store.append(self.n, kind, payload)  # journaled before it is applied
+        t0 = time.perf_counter()
+        self._apply(self.memory, kind, payload)
+        self.replay_s += time.perf_counter() - t0
+        s = self.settings
+        due = snapshot_due(self.n, self.replay_s, self.snapshot_s, s.snapshot_every,
+                           s.max_replay_s, s.snapshot_share)  # fmt: skip
+        if due and (self.writer is None or not self.writer.is_alive()):
+            self._snapshot()
+        for key, value in self.memory.timings_ms.items():
+            self.node.metrics.gauge(key, value)
 
     def _snapshot(self) -> None:
         """Capture the state (under the lock, which the caller holds: tens of ms) and write it
@@ -178,6 +185,10 @@ class SceneMemoryNode:
         frame = usable_depth_frame(self.node, key, frame, self.settings.max_pixels)
         if frame is None:
             return
+        # observations first: a frame thread that takes the lock again as soon as it let it go
+        # (a newer frame is always waiting) would keep them waiting for seconds
+        with self.turn:
+            self.turn.wait_for(lambda: self.observations_waiting == 0, timeout=1.0)
         if self.memory.is_keyframe(frame.T_world_camera):
             self._update("frame", frame)
             if self.settings.registration:
@@ -193,8 +204,18 @@ class SceneMemoryNode:
     def on_observation(self, obs: SceneObservation) -> None:
         if obs.camera != self.obs_camera:
             return  # pc fusion takes the registered cloud's observations only
-        self._update("observation", obs)
-        self.out_scene.put(self.scene())
+        payload = encode(obs)
+        with self.turn:
+            self.observations_waiting += 1
+        try:
+            with self.lock:  # fused and the model taken at once: no frame in between
+                self._apply_update("observation", payload)
+                scene = self.memory.scene(self.n, float(self.n))
+        finally:
+            with self.turn:
+                self.observations_waiting -= 1
+                self.turn.notify_all()
+        self.out_scene.put(scene)
 
     def correction(self, frame: RgbdFrame) -> PoseCorrection:
         """What registering ``frame`` found (the first frame starts the map: identity)."""
