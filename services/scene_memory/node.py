@@ -30,11 +30,10 @@ from schemas import (
     decode,
     encode,
 )
-from services.common import sat
 from services.common.frames import usable_depth_frame
 from services.common.node import Node
 from services.common.standby import wait_for_turn
-from services.scene_memory import occupancy
+from services.scene_memory import fusion, occupancy
 from services.scene_memory.config import SceneMemorySettings
 from services.scene_memory.fusion import FusionConfig
 from services.scene_memory.memory import (
@@ -83,7 +82,7 @@ class SceneMemoryNode:
         if standby is None:
             raise SystemExit(0)  # stopped while standing by
         occupancy.warm_up()  # the kernels before the first frame, not with it
-        sat.warm_up()
+        fusion.warm_up()
         if settings.registration:
             warm_up()
         self.store = Store(settings.data_dir)
