@@ -10,11 +10,11 @@
 # pip's cache in a BuildKit cache mount and an optional CA bundle as the secret `ca`.
 ARG BASE=python:3.11-slim
 
-FROM ${BASE} AS build
+FROM ${BASE} AS deps
 RUN python3 -m venv /opt/avs
 WORKDIR /src
 COPY pyproject.toml constraints.txt ./
-# the dependencies first, from pyproject alone: a change of the sources reuses this layer
+# the dependencies, from pyproject alone: a change of the sources reuses this stage
 RUN --mount=type=cache,target=/root/.cache/pip,sharing=locked \
     --mount=type=bind,source=deploy/wheels,target=/wheels \
     --mount=type=secret,id=ca \
@@ -24,6 +24,7 @@ RUN --mount=type=cache,target=/root/.cache/pip,sharing=locked \
     /opt/avs/bin/python -c 'import tomllib; print("\n".join( \
       tomllib.load(open("pyproject.toml", "rb"))["project"]["dependencies"]))' > deps.txt; \
     /opt/avs/bin/pip install --disable-pip-version-check -q "$@" -c constraints.txt -r deps.txt
+FROM deps AS wheel
 COPY README.md ./
 COPY schemas ./schemas
 COPY services ./services
@@ -34,7 +35,7 @@ RUN --mount=type=cache,target=/root/.cache/pip,sharing=locked \
     set -e; \
     if [ -f /run/secrets/ca ]; then export PIP_CERT=/run/secrets/ca; fi; \
     if ls /wheels/*.whl >/dev/null 2>&1; then set -- --no-index --find-links /wheels; fi; \
-    /opt/avs/bin/pip install --disable-pip-version-check -q "$@" --no-deps .
+    /opt/avs/bin/pip wheel --disable-pip-version-check -q "$@" --no-deps -w /dist .
 
 FROM ${BASE} AS runtime
 # Open3D needs libusb, libGL and libgomp; MuJoCo renders headless through EGL on Mesa. A base
@@ -49,8 +50,12 @@ RUN set -e; missing=""; \
     fi; \
     useradd --create-home --uid 10001 avs \
  && install -d -o avs -g avs /var/lib/avs/scene_memory \
- && install -d -o avs -g avs /home/avs/.cache/avs
-COPY --from=build /opt/avs /opt/avs
+ && install -d -o avs -g avs /home/avs/.cache
+# the dependencies' layer (gigabytes) apart from AVS's own: a change of the sources rebuilds a
+# small wheel and a small layer
+COPY --from=deps /opt/avs /opt/avs
+RUN --mount=type=bind,from=wheel,source=/dist,target=/dist \
+    /opt/avs/bin/pip install --disable-pip-version-check -q --no-deps --no-index /dist/*.whl
 ENV PATH=/opt/avs/bin:$PATH \
     MUJOCO_GL=egl \
     PYTHONUNBUFFERED=1
