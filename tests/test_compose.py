@@ -246,13 +246,13 @@ def test_live_scene_memory_crashed_in_its_container_comes_back_with_its_state(st
     namespace's PID 1 sent from inside); `docker kill` would disable the restart policy."""
     import signal
 
-    from schemas import OccupancyStats, SceneModel, SimControl, encode
+    from schemas import OccupancyStats, SceneModel, SimControl, SimStatus, encode
     from tests.docker_stack import KEYS, query
 
     operator = stack.session("operator")
     (memory,) = stack.containers("scene_memory")
     try:
-        query(operator, KEYS.sim_control(), dict, encode(SimControl(op="pause")))
+        query(operator, KEYS.sim_control(), SimStatus, encode(SimControl(op="pause")))
 
         def model():
             return query(operator, KEYS.scene(), SceneModel)
@@ -281,9 +281,10 @@ def test_live_scene_memory_crashed_in_its_container_comes_back_with_its_state(st
             before.model_version, len(before.primitives))  # fmt: skip
         assert (after_stats.unknown, after_stats.free, after_stats.occupied) == (
             stats.unknown, stats.free, stats.occupied)  # fmt: skip
+        memory.reload()
         assert memory.attrs["State"]["Status"] == "running" and t_serving < 60
     finally:
-        query(operator, KEYS.sim_control(), dict, encode(SimControl(op="resume")))
+        query(operator, KEYS.sim_control(), SimStatus, encode(SimControl(op="resume")))
         operator.close()
     t0 = time.monotonic()
     wait_for(lambda: observer.since(t0).models, 60, "updates fused after the restart")
