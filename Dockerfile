@@ -56,6 +56,7 @@ RUN set -e; missing=""; \
 COPY --from=deps /opt/avs /opt/avs
 RUN --mount=type=bind,from=wheel,source=/dist,target=/dist \
     /opt/avs/bin/pip install --disable-pip-version-check -q --no-deps --no-index /dist/*.whl
+LABEL avs.image=1
 ENV PATH=/opt/avs/bin:$PATH \
     MUJOCO_GL=egl \
     PYTHONUNBUFFERED=1
