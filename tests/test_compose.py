@@ -213,13 +213,28 @@ def test_live_every_container_turns_healthy(stack):
 
 
 @pytest.mark.timeout(120)
-def test_live_an_observer_on_the_host_receives_frames_observations_and_the_scene(observer):
-    t0 = time.monotonic()
-    time.sleep(10)
+def test_live_an_observer_on_the_host_receives_frames_observations_and_the_scene(stack, observer):
+    """...and commands nothing: its put on cmd/base never reaches the operator's subscriber."""
+    from tests.docker_stack import KEYS
+
+    operator = stack.session("operator")
+    commands: list[bytes] = []
+    sub = operator.declare_subscriber(KEYS.key("cmd/base"), lambda s: commands.append(s))
+    with stack.session("observer") as outsider:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 10:
+            outsider.put(KEYS.key("cmd/base"), b"go")
+            time.sleep(0.5)
     seen = observer.since(t0)
     counts = (len(seen.frames), len(seen.observations), len(seen.models))
     print(f"the observer in 10 s: frames, observations, scene models = {counts}")
     assert counts[0] >= 20 and counts[1] >= 10 and counts[2] >= 1, counts  # 4 frames/s
+    assert commands == []  # denied at the router; the operator's goes through:
+    with stack.session("operator") as other:
+        other.put(KEYS.key("cmd/base"), b"go")
+        wait_for(lambda: len(commands) == 1, 10, "the operator's command")
+    sub.undeclare()
+    operator.close()
 
 
 @pytest.mark.timeout(180)
