@@ -3,7 +3,7 @@
 #   DOCKER_BUILDKIT=1 docker build -t avs .                 # from python:3.11-slim
 #   DOCKER_BUILDKIT=1 docker build --target router -t avs-router .
 #   docker run avs python -m services.sim
-# BASE: any Debian-family image with python3 (>= 3.10) and venv; without a registry,
+# BASE: any Debian-family image with python3 (>= 3.11) and venv; without a registry,
 # scripts/docker-setup makes one from Debian packages (mmdebstrap + docker import).
 # Packages: from the wheelhouse deploy/wheels when it holds wheels (scripts/docker-setup fills
 # it from this host's pip configuration; bind-mounted, never copied), else from the index, with
@@ -24,6 +24,8 @@ RUN --mount=type=cache,target=/root/.cache/pip,sharing=locked \
     /opt/avs/bin/python -c 'import tomllib; print("\n".join( \
       tomllib.load(open("pyproject.toml", "rb"))["project"]["dependencies"]))' > deps.txt; \
     /opt/avs/bin/pip install --disable-pip-version-check -q "$@" -c constraints.txt -r deps.txt
+
+# AVS itself, as a wheel the runtime stage installs over the dependencies' layer
 FROM deps AS wheel
 COPY README.md ./
 COPY schemas ./schemas
