@@ -78,6 +78,7 @@ class Stack:
 
     def __init__(self, tmp: Path, name: str) -> None:
         self.name, self.tmp = name, tmp
+        self.t_up = 0.0  # when `compose up` began (monotonic)
         self.port = free_port()
         self.passwords = {u: secrets.token_urlsafe(18) for u in identities()}
         config = tmp / "zenoh"

@@ -176,9 +176,11 @@ def stack(tmp_path_factory):
         pytest.skip(f"{reason}: run scripts/docker-setup (scripts/test does, as root)")
     stack = Stack(tmp_path_factory.mktemp("compose"), f"avstest{os.getpid()}")
     stack.t_up = time.monotonic()
-    stack.compose("up", "-d", "--no-build", "--scale", "perception=2")
-    yield stack
-    stack.compose("down", "-v", "--timeout", "5")
+    try:
+        stack.compose("up", "-d", "--no-build", "--scale", "perception=2")
+        yield stack
+    finally:
+        stack.compose("down", "-v", "--timeout", "5")
 
 
 @pytest.fixture(scope="module")
