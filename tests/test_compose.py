@@ -1,11 +1,13 @@
-"""compose.yaml, checked without a docker engine: it validates against the Compose
-Specification's JSON Schema, and follows our rules (router reachable, same commands as
-`avs up`, scalable services without container_name)."""
+"""compose.yaml, checked without a docker engine (it validates against the Compose
+Specification's JSON Schema and follows our rules: router reachable, same commands as `avs up`,
+scalable services without container_name), then run for real: compose.host.yaml's containers
+up, scaled, killed and recovered (the live tests at the end; tests/docker_stack.py)."""
 
 from __future__ import annotations
 
 import json
 import os
+import time
 from pathlib import Path
 
 import jsonschema
@@ -14,7 +16,7 @@ import yaml
 import zenoh
 
 from avs.services import BY_NAME, existing
-from tests.conftest import ROOT
+from tests.conftest import ROOT, wait_for
 
 COMPOSE = yaml.safe_load((ROOT / "compose.yaml").read_text())
 SCHEMA_PATH = Path(os.environ.get("AVS_VENV", ROOT / ".venv")) / "share/avs/compose_spec.json"
@@ -33,7 +35,8 @@ def test_the_router():
     """The router reads router-<transport>.json5 from the mounted deploy/zenoh: tcp unless
     AVS_TRANSPORT=tls, the one switch to TLS (services connect to the same scheme)."""
     router = COMPOSE["services"]["router"]
-    assert router["image"].startswith("eclipse/zenoh:")
+    # eclipse/zenoh where a registry is reachable, else AVS's own (scripts/docker-setup)
+    assert router["image"].startswith("${AVS_ROUTER_IMAGE:-eclipse/zenoh:")
     assert "7447:7447/tcp" in router["ports"]
     source, target = router["volumes"][0].split(":")[:2]
     assert (ROOT / source).resolve() == (ROOT / "deploy/zenoh").resolve()
@@ -131,3 +134,218 @@ def test_the_health_check_sees_this_hosts_instance(router):
         assert check("perception") == 0
         assert check("nbv") == 1
         token.undeclare()
+
+
+HOST = yaml.safe_load((ROOT / "compose.host.yaml").read_text())
+
+
+def test_the_host_network_file_is_compose_yaml_on_loopback():
+    """compose.host.yaml's services are compose.yaml's but for the network: on the host's,
+    the router on 127.0.0.1 only and every service connecting there (and TCP)."""
+    assert HOST["services"]["router"]["command"][-2:] == ["-l", "tcp/127.0.0.1:${AVS_PORT:-7447}"]
+    assert HOST["services"]["router"]["image"] == COMPOSE["services"]["router"]["image"]
+    for name, service in _services().items():
+        host = HOST["services"][name]
+        assert host["network_mode"] == "host", name
+        assert host["environment"]["AVS_CONNECT"] == "tcp/127.0.0.1:${AVS_PORT:-7447}", name
+        same = {
+            k: v
+            for k, v in service["environment"].items()
+            if k not in ("AVS_CONNECT", "AVS_TLS_CA")
+        }
+        assert {k: host["environment"][k] for k in same} == same, name
+        for key in ("command", "healthcheck", "restart", "depends_on"):
+            assert host[key] == service[key], (name, key)
+        assert host.get("cap_add") == service.get("cap_add"), name
+        named = [v for v in service["volumes"] if not v.startswith("./")]
+        assert host.get("volumes", []) == named, name
+
+
+# -- live: the containers themselves (tests/docker_stack.py) -------------------------------------
+# scripts/test runs scripts/docker-setup first (as root) and sets AVS_REQUIRE_DOCKER=1 when it
+# made the images: then these fail, never skip. One `compose up` serves them all, in this order.
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    from tests.docker_stack import Stack, docker_missing
+
+    if reason := docker_missing():
+        if os.environ.get("AVS_REQUIRE_DOCKER") == "1":
+            pytest.fail(f"scripts/docker-setup succeeded, yet {reason}")
+        pytest.skip(f"{reason}: run scripts/docker-setup (scripts/test does, as root)")
+    stack = Stack(tmp_path_factory.mktemp("compose"), f"avstest{os.getpid()}")
+    stack.t_up = time.monotonic()
+    try:
+        stack.compose("up", "-d", "--no-build", "--scale", "perception=2")
+        yield stack
+    finally:
+        stack.compose("down", "-v", "--timeout", "5")
+
+
+@pytest.fixture(scope="module")
+def observer(stack):
+    from tests.docker_stack import watch
+
+    session = stack.session("observer")
+    seen, subs = watch(session)
+    yield seen
+    for s in subs:
+        s.undeclare()
+    session.close()
+
+
+def _seqs(seen) -> list[int]:
+    return [seq for _, seq, _ in seen.observations]
+
+
+@pytest.mark.timeout(300)
+def test_live_every_container_turns_healthy(stack):
+    services = ["sim", "perception", "perception", "scene_memory", "nbv", "gaze"]
+
+    def health() -> dict[str, str]:
+        return {c.name: c.attrs["State"].get("Health", {}).get("Status") for c in
+                stack.containers() if "Health" in c.attrs["State"]}  # fmt: skip
+
+    wait_for(lambda: list(health().values()).count("healthy") == len(services), 240,
+             "every service container healthy", health)  # fmt: skip
+    names = sorted(c.labels["com.docker.compose.service"] for c in stack.containers())
+    assert names == sorted(["router", *services])
+    print(f"all healthy {time.monotonic() - stack.t_up:.0f} s after compose up")
+
+
+@pytest.mark.timeout(120)
+def test_live_an_observer_on_the_host_receives_frames_observations_and_the_scene(stack, observer):
+    """...and commands nothing: its put on cmd/base never reaches the operator's subscriber."""
+    from tests.docker_stack import KEYS
+
+    operator = stack.session("operator")
+    commands: list[bytes] = []
+    sub = operator.declare_subscriber(KEYS.key("cmd/base"), lambda s: commands.append(s))
+    with stack.session("observer") as outsider:
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 10:
+            outsider.put(KEYS.key("cmd/base"), b"go")
+            time.sleep(0.5)
+    seen = observer.since(t0)
+    counts = (len(seen.frames), len(seen.observations), len(seen.models))
+    print(f"the observer in 10 s: frames, observations, scene models = {counts}")
+    assert counts[0] >= 20 and counts[1] >= 10 and counts[2] >= 1, counts  # 4 frames/s
+    assert commands == []  # denied at the router; the operator's goes through:
+    with stack.session("operator") as other:
+        other.put(KEYS.key("cmd/base"), b"go")
+        wait_for(lambda: len(commands) == 1, 10, "the operator's command")
+    sub.undeclare()
+    operator.close()
+
+
+@pytest.mark.timeout(180)
+def test_live_two_perception_containers_process_each_frame_exactly_once(stack, observer):
+    from services.common.membership import owner
+
+    t0 = time.monotonic()
+    time.sleep(20)
+    frames = sorted({seq for _, seq in observer.since(t0 + 2).frames})  # past what was queued
+    wait_for(lambda: set(frames) <= set(_seqs(observer.since(t0))), 30, "their observations")
+    seen = observer.since(t0)
+    done = [(seq, w) for _, seq, w in seen.observations if frames[0] <= seq <= frames[-1]]
+    assert sorted(seq for seq, _ in done) == frames  # each frame, once
+    workers = sorted({w for _, w in done})
+    per_worker = {w: sum(1 for _, x in done if x == w) for w in workers}
+    print(f"{len(frames)} frames in 18 s, processed by {per_worker}")
+    assert len(workers) == 2 and min(per_worker.values()) >= len(frames) / 5, per_worker
+    assert all(owner(f"head_rgbd:{seq}", workers) == w for seq, w in done)  # by rendezvous
+
+
+@pytest.mark.timeout(240)
+def test_live_scene_memory_crashed_in_its_container_comes_back_with_its_state(stack, observer):
+    """kill -9 of the service process (from the host: the kernel ignores SIGKILL to a
+    namespace's PID 1 sent from inside); `docker kill` would disable the restart policy."""
+    import signal
+
+    from schemas import OccupancyStats, SceneModel, SimControl, SimStatus, encode
+    from tests.docker_stack import KEYS, query
+
+    operator = stack.session("operator")
+    (memory,) = stack.containers("scene_memory")
+    try:
+        query(operator, KEYS.sim_control(), SimStatus, encode(SimControl(op="pause")))
+
+        def model():
+            return query(operator, KEYS.scene(), SceneModel)
+
+        def quiet() -> bool:  # no update for 3 s: the paused stream drained
+            return (last := observer.since(0).models) and time.monotonic() - last[-1][0] > 3
+
+        wait_for(quiet, 60, "the scene memory idle with the sim paused")
+        before, stats = model(), query(operator, KEYS.occupancy("stats"), OccupancyStats)
+        assert before.model_version > 0 and before.primitives
+        restarts = memory.attrs["RestartCount"]
+        t_kill = time.monotonic()
+        os.kill(memory.attrs["State"]["Pid"], signal.SIGKILL)
+        wait_for(lambda: memory.reload() or memory.attrs["RestartCount"] == restarts + 1, 60,
+                 "the restart policy")  # fmt: skip
+        t_restart = time.monotonic() - t_kill
+        wait_for(lambda: (m := model()) is not None and m.model_version >= before.model_version,
+                 90, "the scene memory serving again")  # fmt: skip
+        t_serving = time.monotonic() - t_kill
+        after = model()
+        after_stats = query(operator, KEYS.occupancy("stats"), OccupancyStats)
+        print(f"scene_memory restarted {t_restart:.1f} s after kill -9, serving after "
+              f"{t_serving:.1f} s: version {after.model_version}, "
+              f"{len(after.primitives)} primitives")  # fmt: skip
+        assert (after.model_version, len(after.primitives)) == (
+            before.model_version, len(before.primitives))  # fmt: skip
+        assert (after_stats.unknown, after_stats.free, after_stats.occupied) == (
+            stats.unknown, stats.free, stats.occupied)  # fmt: skip
+        memory.reload()
+        assert memory.attrs["State"]["Status"] == "running" and t_serving < 60
+    finally:
+        query(operator, KEYS.sim_control(), SimStatus, encode(SimControl(op="resume")))
+        operator.close()
+    t0 = time.monotonic()
+    wait_for(lambda: observer.since(t0).models, 60, "updates fused after the restart")
+
+
+@pytest.mark.timeout(180)
+def test_live_a_killed_perception_container_loses_its_queue_at_most(stack, observer):
+    from services.common.membership import owner
+
+    containers = stack.containers("perception")
+    t0 = time.monotonic()
+    time.sleep(5)
+    workers = sorted({w for _, _, w in observer.since(t0).observations})
+    assert len(workers) == 2, workers
+    victim = containers[0]
+    victim.kill()  # SIGKILL; `docker kill` also keeps the restart policy from bringing it back
+    t_kill = time.monotonic()
+    time.sleep(15)
+    frames = sorted({seq for _, seq in observer.since(t0 + 1, t_kill + 12).frames})
+    wait_for(lambda: set(frames[-8:]) <= set(_seqs(observer.since(t0))), 30, "the last frames")
+    seen = observer.since(t0)
+    done = {seq: w for _, seq, w in seen.observations}
+    assert len(done) == len(seen.observations), "a frame processed twice"
+    missing = [s for s in frames if s not in done]
+    killed = {w for w in workers if w not in {done[s] for s in frames[-20:]}}
+    assert len(killed) == 1, workers  # the other took every frame of the last 5 s
+    (dead,) = killed
+    kill_seq = max(s for s, w in done.items() if w == dead)
+    # lost: only the dead worker's frames, those it held (a queue of 16) and those sent in the
+    # second or two before the survivor saw its token go
+    assert all(owner(f"head_rgbd:{s}", workers) == dead for s in missing), missing
+    assert all(kill_seq - 16 <= s <= kill_seq + 12 for s in missing), (kill_seq, missing)
+    victim.reload()
+    assert victim.attrs["State"]["Status"] == "exited"
+    print(
+        f"killed {dead}: {len(missing)} frames lost {missing}; the survivor took "
+        f"{sum(1 for s in frames if s > kill_seq + 12)} after"
+    )
+
+
+@pytest.mark.timeout(120)
+def test_live_compose_down_leaves_nothing(stack):
+    stack.compose("down", "-v", "--timeout", "5")
+    label = {"label": [f"com.docker.compose.project={stack.name}"]}
+    assert stack.containers(all=True) == []
+    assert stack.docker.volumes.list(filters=label) == []
+    assert stack.docker.networks.list(filters=label) == []
