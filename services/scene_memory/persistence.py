@@ -128,11 +128,7 @@ class Store:
         """Write the state of update ``n``; the latest snapshot and its journal become the
         previous ones. At every step a crash leaves a restorable directory: either snapshot
         with the records after it in the two journals."""
-        tmp = self.snapshot_path.with_suffix(".tmp")
-        with open(tmp, "wb") as f:
-            f.write(state_file.dump(state, n))
-            f.flush()
-            os.fsync(f.fileno())
+        tmp = self._written(state_file.dump(state, n))
         self.close()
         if self.snapshot_path.exists():
             os.replace(self.snapshot_path, self.previous_path)
@@ -154,17 +150,22 @@ class Store:
         self._sync_directory()
 
         def finish() -> None:
-            tmp = self.snapshot_path.with_suffix(".tmp")
-            with open(tmp, "wb") as f:
-                f.write(state_file.serialise(tree, arrays, n))
-                f.flush()
-                os.fsync(f.fileno())
+            tmp = self._written(state_file.serialise(tree, arrays, n))
             if self.snapshot_path.exists():
                 os.replace(self.snapshot_path, self.previous_path)
             os.replace(tmp, self.snapshot_path)
             self._sync_directory()
 
         return finish
+
+    def _written(self, data: bytes) -> Path:
+        """``data`` in the temporary snapshot file, flushed and fsynced; its path."""
+        tmp = self.snapshot_path.with_suffix(".tmp")
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        return tmp
 
     def _sync_directory(self) -> None:
         fd = os.open(self.directory, os.O_RDONLY)
