@@ -7,7 +7,11 @@ Integrating a scan casts a ray from the sensor to every point (3D DDA, Amanatide
 voxels on the way are free, the end voxel is occupied, and within one scan each voxel is
 updated once, with occupied winning (OctoMap's ``insertPointCloud``). Points beyond the
 maximum range only clear space up to it. With ``discretize`` the end points are merged per
-voxel first and one ray goes to each voxel's centre (OctoMap's ``discretize`` option).
+voxel first and one ray goes to each voxel's centre (OctoMap's ``discretize`` option); points
+beyond the maximum range are merged by the voxel where their ray is cut, not by their far end's
+(as OctoMap does): far walls 4-6 m away put several far voxels behind every voxel at the 3 m
+cut, whose rays cross the same voxels to within one, and casting each of them was a third of a
+kitchen frame's rays for 0.03 % of its free voxels.
 
 Log-odds are stored as int16 thousandths; -32768 marks unknown. A bounded workspace fits a
 dense array: 4 m × 4 m × 2 m at 1 cm is 32 M voxels, 64 MB.
@@ -72,7 +76,7 @@ def _depth_points(z, fx, fy, cx, cy, T, depth_min, depth_max, every):
     return out[:n]
 
 
-#: the cache of end voxels outside the map or beyond range, merged as OctoMap's discretize does
+#: the cache of end voxels outside the map, and of the voxels where rays beyond range are cut
 SEEN_SLOTS = 1 << 16
 #: rays are cast in passes, coarse to fine: a pass per range here, whose rays are spaced about a
 #: voxel apart at that range (one ray per direction cell of voxel / range), then the rest;
@@ -206,10 +210,11 @@ def _hits(
     within range inside the map, and list the rays to cast in ``rays``, pass by pass (ray
     ``i`` of pass ``k`` at ``starts[k] + i``; ``starts`` gets the passes' bounds; see
     ``_level``); returns their number. With ``discretize`` every point is first moved to the
-    centre of its voxel and one ray is cast per voxel (OctoMap's ``discretize``, which merges
-    the points beyond range and outside the map too: those through ``seen``, a direct-mapped
-    cache of voxel keys, which may let a repeat through, never drop a new one); otherwise one
-    ray per point. Points with a NaN or inf coordinate are skipped."""
+    centre of its voxel and one ray is cast per voxel (OctoMap's ``discretize``); the points
+    outside the map are merged too, and those beyond range by the voxel of their cut, both
+    through ``seen``, a direct-mapped cache of voxel keys, which may let a repeat through,
+    never drop a new one; otherwise one ray per point. Points with a NaN or inf coordinate are
+    skipped."""
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
     inv = 1.0 / voxel
     mask = seen.shape[0] - 1
@@ -246,6 +251,13 @@ def _hits(
                 visited[w] |= bit
                 dirty[block] = 1
         elif discretize:
+            if dist > max_range:  # merged by the voxel where the ray is cut, not its far end
+                cut = max_range / dist * inv
+                key = _key(
+                    math.floor((origin[0] - lo[0]) * inv + dx * cut),
+                    math.floor((origin[1] - lo[1]) * inv + dy * cut),
+                    math.floor((origin[2] - lo[2]) * inv + dz * cut),
+                )
             slot = ((key * 0x9E3779B97F4A7C1) >> 20) & mask
             if seen[slot] == key:
                 continue
@@ -582,6 +594,7 @@ class OccupancyMap:
         self.l_thresh = logit(c.threshold)
         self.frames = 0
         self.version = 0
+        self.rays = 0  # rays the last scan cast
 
     def _scratch(self) -> None:
         """The bit sets of one scan (visited, hit) and a dirty flag per 8×8×8 block, all zero
@@ -662,7 +675,7 @@ class OccupancyMap:
             self._keys = np.empty(len(points), np.int64)
         keys = self._keys[: len(points)]
         _cells(points, self.lo, self.voxel, keys)
-        _hits(
+        self.rays = _hits(
             *grid, points, keys, max_range, self.config.discretize, self._seen,
             _basis(points, origin), self._deltas, self._grids, self._grid_off, self._grid_w,
             PASS_SPAN, self._ray_scratch, self._rays, starts,
