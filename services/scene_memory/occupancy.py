@@ -11,7 +11,7 @@ voxel first and one ray goes to each voxel's centre (OctoMap's ``discretize`` op
 beyond the maximum range are merged by the voxel where their ray is cut, not by their far end's
 (as OctoMap does): far walls 4-6 m away put several far voxels behind every voxel at the 3 m
 cut, whose rays cross the same voxels to within one, and casting each of them was a third of a
-kitchen frame's rays for 0.03 % of its free voxels.
+kitchen frame's rays for 0.2 % of its free voxels.
 
 Log-odds are stored as int16 thousandths; -32768 marks unknown. A bounded workspace fits a
 dense array: 4 m × 4 m × 2 m at 1 cm is 32 M voxels, 64 MB.
