@@ -30,7 +30,9 @@ class ViewCandidates(Stamped):
     base_pose: Annotated[np.ndarray, Array("float64", ("n", 3)), Finite()] = Field(
         description="platform pose (x, y, yaw) of each view (Eq. 4.2, 4.3)"
     )
-    information_gain: Annotated[np.ndarray, _column()]
+    information_gain: Annotated[
+        np.ndarray, _column(description="predicted IG; 0 where c = ∞ is certain without a search")
+    ]
     cost: Annotated[np.ndarray, _column(description="s, inf if unreachable")]
     utility: Annotated[np.ndarray, _column()]
     saliency: Annotated[np.ndarray, _column()]

@@ -392,14 +392,17 @@ def hierarchical(
     box: tuple[np.ndarray, np.ndarray] | None = None,
     measure: str = "rays",
     coarse: Callable[[np.ndarray], np.ndarray] | None = None,
+    skip: SkipMap | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(IG of every view, the indices of the best k, whose IG is then from every ray).
     ``measure``: "rays" (Eq. 4.6: the coarse IG scaled by ``every`` so that both are on one
     scale) or "volume" (see ``information_gain``). ``coarse``: who computes the every-n-th-ray
-    gains of all views (e.g. shares of them on other nbv workers), same measure and scale."""
+    gains of all views (e.g. shares of them on other nbv workers), same measure and scale.
+    ``skip``: the map's ``SkipMap`` for ``box`` when the caller built it already."""
     if measure not in ("rays", "volume"):
         raise ValueError(f"unknown IG measure {measure!r}: rays or volume")
-    skip = SkipMap.build(states, origin, voxel, box)
+    if skip is None:
+        skip = SkipMap.build(states, origin, voxel, box)
 
     def gain(views: np.ndarray, n: int) -> np.ndarray:
         rays, omega = _camera_rays(tuple(intrinsics), n)

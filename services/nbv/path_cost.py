@@ -185,19 +185,36 @@ class PathPlanner:
             return -1
         return int(self.labels[k[0], k[1]])
 
+    def _decided(self, start: np.ndarray, goal: np.ndarray) -> tuple[bool, np.ndarray | None]:
+        """What ``plan`` knows without a search: (True, the straight path) when the line is
+        free, (True, None) when the goal cannot be reached (its cell not free, the start boxed
+        in, or the two in different free components), (False, None) when only RRT can tell."""
+        if not self.valid(goal[None, :2])[0]:
+            return True, None
+        if self._segment_free(start, goal):
+            return True, np.stack([start, goal])
+        if not self.valid(start[None, :2])[0]:
+            return True, None  # boxed in: the caller clears its own footprint first
+        a, b = self._label(start), self._label(goal)
+        if a >= 0 and b >= 0 and a != b:
+            return True, None  # two free components of the map, no way round outside it
+        return False, None
+
     def plan(self, start, goal) -> np.ndarray | None:
         """Waypoints (x, y, α) from start to goal, or None when the goal is unreachable."""
         start, goal = np.asarray(start, float), np.asarray(goal, float)
-        if not self.valid(goal[None, :2])[0]:
-            return None
-        if self._segment_free(start, goal):
-            return np.stack([start, goal])
-        if not self.valid(start[None, :2])[0]:
-            return None  # boxed in: the caller clears its own footprint first
-        a, b = self._label(start), self._label(goal)
-        if a >= 0 and b >= 0 and a != b:
-            return None  # two free components of the map, no way round outside it
-        return self._rrt(start, goal)
+        decided, path = self._decided(start, goal)
+        return path if decided else self._rrt(start, goal)
+
+    def maybe_reachable(self, start, goals: np.ndarray) -> np.ndarray:
+        """Per goal (n, 3): False where ``plan`` would return None without a search (so c = ∞
+        for certain), True where a path is known or a search may find one."""
+        start = np.asarray(start, float)
+        out = np.ones(len(goals), bool)
+        for i, goal in enumerate(np.asarray(goals, float)):
+            decided, path = self._decided(start, goal)
+            out[i] = not decided or path is not None
+        return out
 
     def _space_information(self):
         from ompl import base as ob

@@ -254,13 +254,10 @@ class Planner:
             self.config, self.rng.bit_generator.state = config, rng
             self.first_gain, self.coarse_gains = first_gain, fan_out
 
-    def path_costs(
-        self, states, origin, voxel, current, bases: np.ndarray
-    ) -> tuple[np.ndarray, list[np.ndarray | None], PathPlanner, float]:
-        """(c(v), the path) from ``current`` to each platform pose (Eq. 4.9, ∞ and None when
-        unreachable), the path planner and the milliseconds it all took."""
+    def path_planner(self, states, origin, voxel, current) -> PathPlanner:
+        """The platform's path planner on this map's floor, the robot's own footprint (and a
+        margin) cleared: the map cannot have seen the floor under it."""
         c = self.config
-        t0 = time.perf_counter()
         floor = FloorMap.from_states(
             states,
             origin,
@@ -268,15 +265,19 @@ class Planner:
             keep_free=[(current[0], current[1], c.footprint + 0.1)],
             unseen_inside=c.roi,
         )
-        planner = PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
+        return PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
+
+    @staticmethod
+    def path_costs(
+        planner: PathPlanner, current, bases: np.ndarray
+    ) -> tuple[np.ndarray, list[np.ndarray | None]]:
+        """(c(v), the path) from ``current`` to each platform pose (Eq. 4.9; ∞ and None when
+        unreachable)."""
         cost = np.full(len(bases), math.inf)
         paths: list[np.ndarray | None] = [None] * len(bases)
-        try:
-            for i, b in enumerate(bases):
-                cost[i], paths[i] = planner.cost(np.array(current), b)
-        finally:
-            planner.close()
-        return cost, paths, planner, (time.perf_counter() - t0) * 1e3
+        for i, b in enumerate(bases):
+            cost[i], paths[i] = planner.cost(np.array(current), b)
+        return cost, paths
 
     def plan(
         self,
@@ -297,18 +298,48 @@ class Planner:
         cands = self.visible(reachable_by_ik, occupancy)
         sampled = (len(reachable_by_ik.t), len(cands.t))
         times["sampling_ms"] = (time.perf_counter() - t0) * 1e3
-        # path costs need no gains: planned in a second thread while IG runs (its kernels
-        # release the GIL), so the OMPL / Python work fills the cores' gaps instead of
-        # following the ray casting; one thread, in order, as before: OMPL draws the same
-        with ThreadPoolExecutor(1, thread_name_prefix="nbv-paths") as pool:
-            paths_job = pool.submit(self.path_costs, states, origin, voxel, current, cands.base)
-            t1 = time.perf_counter()
-            gain, _ = ig.hierarchical(
-                states, origin, voxel, cands.poses, c.intrinsics, c.max_range, c.every,
-                c.best_k, c.roi, c.ig_measure, self.coarse_gains,
-            )  # fmt: skip
-            times["information_gain_ms"] = (time.perf_counter() - t1) * 1e3
-            cost, paths, planner, times["path_cost_ms"] = paths_job.result()
+        # a view whose platform pose is in collision, or in a free region the robot is not in,
+        # has c = ∞ whatever its gain (every strategy drops it): IG is predicted for the others
+        # only (in a booth, 1 view in 4), theirs stays 0. The floor map that tells, and then
+        # the path costs (OMPL, Python), run on a second thread beside the skip map's build and
+        # the ray casting (whose kernels release the GIL): they fill the cores' gaps instead of
+        # following them; one thread, in order, as before: OMPL draws the same.
+        gain, cost = np.zeros(len(cands.t)), np.full(len(cands.t), math.inf)
+        paths: list[np.ndarray | None] = [None] * len(cands.t)
+        planner: PathPlanner | None = None
+        try:
+            with ThreadPoolExecutor(1, thread_name_prefix="nbv-paths") as pool:
+
+                def floor() -> tuple[PathPlanner, np.ndarray, float]:
+                    t = time.perf_counter()
+                    p = self.path_planner(states, origin, voxel, current)
+                    maybe = np.flatnonzero(p.maybe_reachable(current, cands.base))
+                    return p, maybe, time.perf_counter() - t
+
+                def costs() -> tuple[tuple[np.ndarray, list], float]:
+                    t = time.perf_counter()
+                    return self.path_costs(planner, current, cands.base[maybe]), (
+                        time.perf_counter() - t
+                    )
+
+                floor_job = pool.submit(floor)
+                t1 = time.perf_counter()
+                skip = ig.SkipMap.build(states, origin, voxel, c.roi)
+                planner, maybe, floor_s = floor_job.result()
+                costs_job = pool.submit(costs)
+                if len(maybe):
+                    gain[maybe], _ = ig.hierarchical(
+                        states, origin, voxel, cands.poses[maybe], c.intrinsics, c.max_range,
+                        c.every, c.best_k, c.roi, c.ig_measure, self.coarse_gains, skip,
+                    )  # fmt: skip
+                times["information_gain_ms"] = (time.perf_counter() - t1) * 1e3
+                (cost[maybe], found), costs_s = costs_job.result()
+        finally:
+            if planner is not None:
+                planner.close()
+        for i, path in zip(maybe, found, strict=True):
+            paths[i] = path
+        times["path_cost_ms"] = (floor_s + costs_s) * 1e3
         u = utility(c.strategy, gain, cost, cands.saliency, c.lam, self.rng)
         reachable = np.isfinite(cost)
         best = int(np.argmax(u)) if reachable.any() else None

@@ -50,3 +50,37 @@ def test_no_candidates_says_why():
     assert "inverse kinematics" in Planner.why_no_candidates(planner, (0, 0, 0), (0, 0))
     assert "known obstacles" in Planner.why_no_candidates(planner, (0, 0, 0), (7, 0))
     assert "none of the 10" in Planner.why_no_candidates(planner, (-0.9, -0.9, 0), (12, 10))
+
+
+def test_views_whose_platform_pose_is_in_collision_get_no_information_gain(planner):
+    """IG is predicted only for views a path may reach: a view whose platform pose lies in an
+    obstacle has c = ∞ for every strategy, so its rays are not cast (gain 0, never chosen)."""
+    voxel, origin = 0.04, np.array([-1.5, -2.5, 0.0])
+    states = np.full((125, 125, 50), 1, np.uint8)  # free
+    x = origin[0] + (np.arange(125) + 0.5) * voxel
+    z = origin[2] + (np.arange(50) + 0.5) * voxel
+    states[np.ix_(x > 2.0, np.arange(125), (z > 0.1) & (z < 0.8))] = 2  # a block behind
+    k = np.floor((CENTRE - origin) / voxel).astype(int)
+    states[k[0] - 5 : k[0] + 5, k[1] - 5 : k[1] + 5, : k[2] - 2] = 2  # the table
+    states[k[0] - 5 : k[0] + 5, k[1] - 5 : k[1] + 5, k[2] - 2 : k[2] + 5] = 0  # unknown on it
+    sent: list[int] = []
+
+    def coarse(poses: np.ndarray) -> np.ndarray:
+        sent.append(len(poses))
+        return planner.coarse(states, origin, voxel, poses)
+
+    planner.coarse_gains = coarse
+    try:
+        r = planner.plan(CENTRE[None], None, states, origin, voxel, (0.0, 0.0, 0.0),
+                         np.zeros((1, 3)), 1)  # fmt: skip
+    finally:
+        planner.coarse_gains, planner.first_gain = None, None
+    n, bx = len(r.candidates.t), r.candidates.base[:, 0]
+    skipped = r.gain == 0
+    assert sent == [n - skipped.sum()]  # IG cast for the others only
+    assert 10 < skipped.sum() < n - 10  # both kinds of view are sampled
+    # skipped: the platform's footprint (0.45 m + 0.05 m margin) reaches into the block
+    assert np.all(bx[skipped] > 2.0 - 0.5 - 0.1) and np.all(np.isinf(r.cost[skipped]))
+    assert np.all(skipped[bx > 2.0 - 0.5 + 0.1])
+    assert np.isfinite(r.cost[~skipped]).all()
+    assert r.best is not None and not skipped[r.best]

@@ -98,3 +98,20 @@ def test_outside_the_map_is_unknown_space_not_an_obstacle():
     assert len(path) == 2 and cost == pytest.approx(4.0)
     # a line through the wall is still refused, wherever it starts
     assert not planner._segment_free(np.array([-2.0, 0.0]), np.array([2.0, 0.0]))
+
+
+def test_maybe_reachable_is_false_only_where_the_cost_is_infinite():
+    """The planner's cheap filter (no search): a goal in an obstacle or in a closed room is
+    refused at once; every goal it refuses costs ∞, and every goal with a path passes it."""
+    room = [(1.5, -0.5, 2.8, -0.4), (1.5, 0.4, 2.8, 0.5), (1.5, -0.5, 1.6, 0.5),
+            (2.7, -0.5, 2.8, 0.5)]  # fmt: skip
+    planner = PathPlanner(world([(0.8, -1.0, 1.2, 1.0), *room]), 0.2, 0.5, 1.0)
+    start = np.array([0.0, 0.0, 0.0])
+    goals = np.column_stack([np.random.default_rng(1).uniform([-1, -2], [3, 2], (200, 2)),
+                             np.zeros(200)])  # fmt: skip
+    goals[:2] = [(1.0, 0.0, 0.0), (2.15, 0.0, 0.0)]  # in the wall, in the room
+    maybe = planner.maybe_reachable(start, goals)
+    assert not maybe[0] and not maybe[1]
+    costs = np.array([planner.cost(start, g)[0] for g in goals])
+    assert np.isinf(costs[~maybe]).all() and 20 < (~maybe).sum() < 180
+    assert maybe[np.isfinite(costs)].all()
