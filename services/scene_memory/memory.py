@@ -5,6 +5,7 @@ messages in, state out; the node adds transport and persistence."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,8 @@ MAX_CLOUD = 400_000  # points the registered cloud keeps
 REGISTERED_CAMERA = "registered"
 #: points of the roi's registered cloud that ``pc`` fusion re-extracts from, at most
 MAX_ROI_CLOUD = 60_000
+#: ``SceneMemory.fuse``'s default correction: the last registration's
+LAST = object()
 
 
 @dataclass
@@ -102,21 +105,28 @@ class SceneMemory:
         self.frames_skipped += 1
         self.realised_gain = {"volume": 0.0, "rays": 0.0}
 
-    def integrate(self, frame: RgbdFrame) -> int:
-        """Add a depth frame to the occupancy map and the registered cloud."""
+    def integrate(self, frame: RgbdFrame, registered: Callable[[], None] | None = None) -> int:
+        """Add a depth frame to the occupancy map and the registered cloud; ``registered`` is
+        called once its pose is final (registration done, ``T_world_odom`` updated), before
+        the map's part, the long one."""
         if frame.depth is None:
             return 0
         self.last_keyframe = np.array(frame.T_world_camera, float)
         t0 = time.perf_counter()
         K = frame.intrinsics
         max_range = min(self.config.occupancy.max_range, frame.depth_max or np.inf)
-        self.timings_ms = {}
+        # the frame's timings replace the last frame's; fusion's (``fuse_ms``) stay: the node
+        # may fuse meanwhile on another thread, so the dict is updated, never replaced
+        for key in ("registration_ms", "registration_map_ms"):
+            self.timings_ms.pop(key, None)
         # the frame's points, every 2nd pixel, in its camera's frame: registered, then the cloud
         z = frame.depth[::2, ::2]
         v, u = np.nonzero((z > self.config.depth_min) & (z <= max_range))
         d = z[v, u].astype(np.float64)
         cam = np.column_stack([(2 * u - K.cx) / K.fx * d, (2 * v - K.cy) / K.fy * d, d])
-        T, registered = self.registered_pose(frame, cam)
+        T, placed = self.registered_pose(frame, cam)
+        if registered is not None:
+            registered()
         roi = self.config.roi
         if roi is not None:
             unknown = self.occupancy.counts(*roi)[0]
@@ -133,7 +143,7 @@ class SceneMemory:
             self.realised_gain = {"volume": float(volume), "rays": rays}
         t1 = time.perf_counter()
         pts = cam @ T[:3, :3].T + T[:3, 3]
-        if self.config.registration is not None and registered:
+        if self.config.registration is not None and placed:
             # only frames that registration placed (or the first, which defines the map): a
             # refused frame, fused where odometry puts it, would give the next frame a
             # misplaced copy of the scene to align to
@@ -232,14 +242,18 @@ class SceneMemory:
             self.registration_map = RegistrationMap.of(self.cloud, self.config.registration)
         return self.registration_map
 
-    def fuse(self, obs: SceneObservation) -> Update:
+    def fuse(self, obs: SceneObservation, correction: object = LAST) -> Update:
         """Fuse an observation (Algorithm 2), moved into the registered map by the odometry's
-        correction when registration has found one. One perceived in the registered cloud
-        (``registered_cloud``) is in the map already, and saw the whole roi at once."""
+        ``correction`` (default: ``T_world_odom``, the last registration's; None: none). One
+        perceived in the registered cloud (``registered_cloud``) is in the map already, and saw
+        the whole roi at once. Fusion reads nothing else of the map's side (the occupancy map,
+        the cloud, registration): the node fuses on one thread while frames are integrated on
+        another, handing it the correction it journaled with the observation."""
         t0 = time.perf_counter()
         whole = obs.camera == REGISTERED_CAMERA
-        if self.T_world_odom is not None and not whole:
-            obs = moved(obs, self.T_world_odom)
+        T = self.T_world_odom if correction is LAST else correction
+        if T is not None and not whole:
+            obs = moved(obs, np.asarray(T, float))
         update = self.fusion.update(obs, whole=whole)
         self.fused_frame = (obs.frame_seq, obs.frame_stamp)
         self.timings_ms["fuse_ms"] = (time.perf_counter() - t0) * 1e3

@@ -14,8 +14,9 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
+import msgpack
 import numpy as np
 
 from schemas import (
@@ -50,6 +51,22 @@ log = logging.getLogger("avs.scene_memory")
 
 #: observations waiting to be fused at most (the oldest go first when fusion falls behind)
 OBS_QUEUE = 8
+#: an observation waits for its frame's registration this long at most, s
+REGISTRATION_WAIT_S = 2.0
+#: the journal's kind of an observation with the odometry correction it was fused with
+OBSERVATION_CORRECTED = "observation+correction"
+
+
+def pack_observation(observation: bytes, correction: np.ndarray | None) -> bytes:
+    """An observation's journal payload: its message and the correction it is fused with."""
+    T = None if correction is None else np.asarray(correction, float).reshape(-1).tolist()
+    return msgpack.packb({"observation": observation, "T_world_odom": T}, use_bin_type=True)
+
+
+def unpack_observation(payload: bytes) -> tuple[bytes, np.ndarray | None]:
+    content = msgpack.unpackb(payload, raw=False)
+    T = content["T_world_odom"]
+    return content["observation"], None if T is None else np.array(T, float).reshape(4, 4)
 
 
 def new_memory(s: SceneMemorySettings) -> SceneMemory:
@@ -69,12 +86,22 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
 
 
 class SceneMemoryNode:
+    """Two sides, each under a lock of its own, so that neither waits for the other: the map's
+    (depth frames: occupancy map, registered cloud, registration; ``map_lock``) and the
+    model's (observations: fusion; ``model_lock``). One journal orders both (``journal_lock``):
+    an observation's record holds the odometry correction it was fused with, so a replay in
+    journal order fuses it as it was fused live, whatever frame was being registered then.
+    A snapshot takes both sides' locks (map first) and then the journal's."""
+
     def __init__(self, node: Node, settings: SceneMemorySettings) -> None:
         self.node, self.settings = node, settings
-        self.lock = threading.Lock()
-        # observations go before frames (``on_frame`` waits while one is waiting)
-        self.turn = threading.Condition()
-        self.observations_waiting = 0
+        self.map_lock = threading.Lock()
+        self.model_lock = threading.Lock()
+        self.journal_lock = threading.Lock()
+        # the seq of the frame being registered (None: none): an observation of that frame or
+        # a later one waits for its correction (tens of ms), not for the map's integration
+        self.registering: int | None = None
+        self.registered = threading.Condition()
         # one writer: wait on standby while another instance is active, then restore what
         # it wrote to the shared data directory
         standby = wait_for_turn(node.session, node.keys, "scene_memory", node.instance,
@@ -97,10 +124,10 @@ class SceneMemoryNode:
             node.publisher(k.cloud_frame(REGISTERED_CAMERA)) if settings.fusion != "sg" else None
         )
         self.obs_camera = REGISTERED_CAMERA if settings.fusion != "sg" else settings.camera
-        # the work runs on the inputs' own threads, never in Zenoh's callbacks: observations
-        # in order (a few waiting at most), depth frames newest first (one at a time); both at
-        # nice 0 beside rendering, after perception's worker (a frame is fused once its depth is
-        # in the map: the map is on the pipeline's path, not deferrable)
+        # the work runs on the inputs' own threads, never in Zenoh's callbacks, side by side:
+        # observations in order (a few waiting at most), depth frames newest first (one at a
+        # time); both at nice 0 beside rendering, after perception's worker (a frame is fused
+        # once its depth is in the map: the map is on the pipeline's path, not deferrable)
         node.subscribe(k.observation(), SceneObservation, self.on_observation, queue=OBS_QUEUE,
                        nice=0)  # fmt: skip
         node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame, latest_only=True,
@@ -132,38 +159,69 @@ class SceneMemoryNode:
         return memory, n
 
     @staticmethod
-    def _apply(memory: SceneMemory, kind: str, payload: bytes) -> None:
+    def _apply(
+        memory: SceneMemory, kind: str, payload: bytes, registered: Callable[[], None] | None = None
+    ) -> None:
         if kind == "frame":
-            memory.integrate(decode(payload, RgbdFrame))
+            memory.integrate(decode(payload, RgbdFrame), registered)
         elif kind == "skip":
             memory.skip()
-        else:
+        elif kind == OBSERVATION_CORRECTED:
+            obs, correction = unpack_observation(payload)
+            memory.fuse(decode(obs, SceneObservation), correction)
+        else:  # "observation": journaled before corrections were (the last one's then)
             memory.fuse(decode(payload, SceneObservation))
 
     def _update(self, kind: str, message) -> None:
         payload = encode(message) if message is not None else b""
-        with self.lock:
-            self._apply_update(kind, payload)
-
-    def _apply_update(self, kind: str, payload: bytes) -> None:
-        """Journal, apply, snapshot when due (the caller holds the lock)."""
-        self.n += 1
-        self.store.append(self.n, kind, payload)  # journaled before it is applied
-        t0 = time.perf_counter()
-        self._apply(self.memory, kind, payload)
-        self.replay_s += time.perf_counter() - t0
-        s = self.settings
-        due = snapshot_due(self.n, self.replay_s, self.snapshot_s, s.snapshot_every,
-                           s.max_replay_s, s.snapshot_share)  # fmt: skip
-        if due and (self.writer is None or not self.writer.is_alive()):
+        with self.map_lock:
+            if kind == "frame":
+                with self.registered:
+                    self.registering = message.seq
+            try:
+                due = self._apply_update(kind, payload, self._registered)
+            finally:
+                self._registered()
+        if due:
             self._snapshot()
-        for key, value in self.memory.timings_ms.items():
+
+    def _registered(self) -> None:
+        """The frame in flight has its pose: observations waiting for it go on."""
+        with self.registered:
+            self.registering = None
+            self.registered.notify_all()
+
+    def _apply_update(
+        self, kind: str, payload: bytes, registered: Callable[[], None] | None = None
+    ) -> bool:
+        """Journal and apply (the caller holds its side's lock); whether a snapshot is due
+        (the caller takes it once it let its lock go: ``_snapshot``)."""
+        with self.journal_lock:
+            self.n += 1
+            n = self.n
+            self.store.append(n, kind, payload)  # journaled before it is applied
+        t0 = time.perf_counter()
+        self._apply(self.memory, kind, payload, registered)
+        for key, value in dict(self.memory.timings_ms).items():
             self.node.metrics.gauge(key, value)
+        s = self.settings
+        with self.journal_lock:
+            self.replay_s += time.perf_counter() - t0
+            return snapshot_due(n, self.replay_s, self.snapshot_s, s.snapshot_every,
+                                s.max_replay_s, s.snapshot_share)  # fmt: skip
 
     def _snapshot(self) -> None:
-        """Capture the state (under the lock, which the caller holds: tens of ms) and write it
-        on a thread of its own (serialising and writing a kitchen map take 0.2-0.4 s, during
-        which frames and observations go on)."""
+        """Capture the state with every lock held (map, model, journal: nothing in flight,
+        every journaled update applied; tens of ms) and write it on a thread of its own
+        (serialising and writing a kitchen map take 0.2-0.4 s, during which frames and
+        observations go on). Called with neither side's lock held; none while one is being
+        written."""
+        with self.map_lock, self.model_lock, self.journal_lock:
+            if self.writer is not None and self.writer.is_alive():
+                return
+            self._capture()
+
+    def _capture(self) -> None:
         t0 = time.perf_counter()
         finish = self.store.begin_snapshot(self.memory, self.n)
         captured = time.perf_counter() - t0
@@ -184,10 +242,6 @@ class SceneMemoryNode:
         frame = usable_depth_frame(self.node, key, frame, self.settings.max_pixels)
         if frame is None:
             return
-        # observations first: a frame thread that takes the lock again as soon as it let it go
-        # (a newer frame is always waiting) would keep them waiting for seconds
-        with self.turn:
-            self.turn.wait_for(lambda: self.observations_waiting == 0, timeout=1.0)
         if self.memory.is_keyframe(frame.T_world_camera):
             self._update("frame", frame)
             if self.settings.registration:
@@ -196,29 +250,33 @@ class SceneMemoryNode:
             self._update("skip", None)
             self.node.metrics.gauge("frames_skipped", self.memory.frames_skipped)
         if self.out_registered is not None:
-            with self.lock:
+            with self.map_lock:
                 cloud = registered_cloud(self.memory, frame)
             self.out_registered.put(cloud)
 
     def on_observation(self, obs: SceneObservation) -> None:
         if obs.camera != self.obs_camera:
             return  # pc fusion takes the registered cloud's observations only
-        payload = encode(obs)
-        with self.turn:
-            self.observations_waiting += 1
-        try:
-            with self.lock:  # fused and the model taken at once: no frame in between
-                self._apply_update("observation", payload)
-                scene = self.memory.scene(self.n, float(self.n))
-        finally:
-            with self.turn:
-                self.observations_waiting -= 1
-                self.turn.notify_all()
+        # its own frame's correction when that frame is being registered (the observation
+        # was perceived at that frame's odometry pose), not the one before it by a race
+        with self.registered:
+            self.registered.wait_for(
+                lambda: self.registering is None or self.registering > obs.frame_seq,
+                timeout=REGISTRATION_WAIT_S,
+            )
+        with self.model_lock:  # fused and the model taken at once: no observation in between
+            # the correction the map's side has now (a reference read: it replaces the array,
+            # never writes into it), journaled with the observation it moves
+            payload = pack_observation(encode(obs), self.memory.T_world_odom)
+            due = self._apply_update(OBSERVATION_CORRECTED, payload)
+            scene = self.memory.scene(self.n, float(self.n))
         self.out_scene.put(scene)
+        if due:
+            self._snapshot()
 
     def correction(self, frame: RgbdFrame) -> PoseCorrection:
         """What registering ``frame`` found (the first frame starts the map: identity)."""
-        with self.lock:
+        with self.map_lock:
             m = self.memory
             last = m.last_registration or {"accepted": True, "reason": "", "fitness": 1.0,
                                            "rmse": 0.0, "ms": 0.0}  # fmt: skip
@@ -233,7 +291,7 @@ class SceneMemoryNode:
         )  # fmt: skip
 
     def scene(self) -> SceneModel:
-        with self.lock:
+        with self.model_lock:
             return self.memory.scene(self.n, float(self.n))
 
     def _box(self, request: BoxQuery | None) -> tuple[np.ndarray, np.ndarray]:
@@ -246,7 +304,7 @@ class SceneMemoryNode:
 
     def on_stats(self, request: BoxQuery | None) -> OccupancyStats:
         lo, hi = self._box(request)
-        with self.lock:
+        with self.map_lock:
             occ = self.memory.occupancy
             unknown, free, occupied = occ.counts(lo, hi)
             realised = self.memory.realised_gain
@@ -269,7 +327,7 @@ class SceneMemoryNode:
         """The voxel states in the box (default: the roi, else the map), in pages of at most
         ``slice_page_voxels`` (slabs along x): no reply grows with the box asked for."""
         lo, hi = self._box(request)
-        with self.lock:
+        with self.map_lock:
             occ = self.memory.occupancy
             x0, y0, z0, x1, y1, z1 = occ.index_box(lo, hi)
             per_x = max(1, (y1 - y0) * (z1 - z0))
@@ -288,7 +346,7 @@ class SceneMemoryNode:
                 )
 
     def cloud(self) -> PointCloud:
-        with self.lock:
+        with self.map_lock:
             return self.memory.point_cloud(self.n)
 
     def close(self) -> None:

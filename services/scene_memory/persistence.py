@@ -9,9 +9,12 @@ Data directory layout:
   written to a temporary file and renamed, so it is either the old one or the new one;
 - ``snapshot.prev.avs``: the one before it, used when the latest is refused (truncated,
   bit-flipped, of another version);
-- ``journal.log``: msgpack maps ``{"n": update number, "kind": "frame" | "observation" |
-  "skip", "payload": the message's bytes}``, one per update after the latest snapshot, flushed
-  and fsynced. A record cut short by a crash (kill -9) is the update in flight: it is ignored;
+- ``journal.log``: msgpack maps ``{"n": update number, "kind": "frame" | "skip" |
+  "observation+correction" (| "observation", from before corrections were journaled),
+  "payload": the message's bytes}`` (an observation's: msgpack ``{"observation": its bytes,
+  "T_world_odom": the 16 numbers of the odometry correction it was fused with, or nil}``), one
+  per update after the latest snapshot, flushed and fsynced. A record cut short by a crash
+  (kill -9) is the update in flight: it is ignored;
 - ``journal.prev.log``: the records between the previous snapshot and the latest.
 
 Restoring replays, from both journals, the records after the snapshot used, in order, and

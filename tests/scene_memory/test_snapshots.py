@@ -153,3 +153,41 @@ def test_a_snapshot_written_while_updates_go_on_restores_everything(
         SceneMemoryNode._apply(state, kind, payload)
     assert summary(state.scene(12, 12.0)) == summary(full.scene(12, 12.0))
     assert state.occupancy.counts() == full.occupancy.counts()
+
+
+def test_an_observation_replays_with_the_correction_it_was_fused_with(updates):
+    """The node fuses observations on one thread while frames are registered on another, so
+    the odometry correction an observation was fused with is journaled with it: replayed
+    after the map's correction moved on (or before it existed), it is fused as it was live.
+    Without the record's correction (the old kind) the replay would use the memory's own and
+    the primitives land 5 cm away."""
+    from scipy.spatial.transform import Rotation
+
+    from services.scene_memory.node import OBSERVATION_CORRECTED, pack_observation
+
+    k, obs = [(i, m) for i, (kind, m) in enumerate(updates) if kind == "observation"][1]
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", 2, degrees=True).as_matrix()
+    T[:3, 3] = [0.05, -0.02, 0.0]
+    other = np.eye(4)
+    other[:3, 3] = [-0.03, 0.04, 0.01]
+
+    live = reference(updates[:k])
+    live.fuse(obs, T)
+    payload = pack_observation(encode(obs), T)
+    for before in (None, other):  # what the map's side holds when the record is replayed
+        replayed = reference(updates[:k])
+        replayed.T_world_odom = before
+        SceneMemoryNode._apply(replayed, OBSERVATION_CORRECTED, payload)
+        assert summary(replayed.scene()) == summary(live.scene())
+    old_kind = reference(updates[:k])
+    old_kind.T_world_odom = other
+    SceneMemoryNode._apply(old_kind, "observation", encode(obs))
+    assert summary(old_kind.scene()) != summary(live.scene())
+    # no correction when it was fused: none when replayed, whatever the memory holds now
+    unmoved = reference(updates[:k])
+    unmoved.T_world_odom = other
+    SceneMemoryNode._apply(unmoved, OBSERVATION_CORRECTED, pack_observation(encode(obs), None))
+    plain = reference(updates[:k])
+    plain.fuse(obs, None)
+    assert summary(unmoved.scene()) == summary(plain.scene())

@@ -1,0 +1,57 @@
+"""The scene memory's two sides, each under a lock of its own: a depth frame is integrated
+while an observation is being fused and an observation fused while a frame is integrated,
+and an observation of the frame being registered waits for that frame's correction only."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from services.common.node import Node
+from services.scene_memory.config import SceneMemorySettings
+from services.scene_memory.node import SceneMemoryNode
+from tests.scene_memory.views import BOUNDS_MAX, BOUNDS_MIN, VOXEL
+
+
+@pytest.fixture
+def memory(tmp_path):
+    settings = SceneMemorySettings(
+        mode="peer", multicast=False, listen=[], data_dir=tmp_path, voxel=VOXEL,
+        bounds_min=BOUNDS_MIN, bounds_max=BOUNDS_MAX,
+    )  # fmt: skip
+    with Node("scene_memory", settings, announce=False) as node:
+        m = SceneMemoryNode(node, settings)
+        yield m
+        m.close()
+
+
+def done_within(work, seconds: float) -> bool:
+    t = threading.Thread(target=work, daemon=True)
+    t.start()
+    t.join(seconds)
+    return not t.is_alive()
+
+
+def test_neither_side_waits_for_the_other(memory, updates):
+    frames = [m for kind, m in updates if kind == "frame"]
+    observations = [m for kind, m in updates if kind == "observation"]
+    with memory.model_lock:  # an observation being fused all along
+        assert done_within(lambda: memory.on_frame(frames[0]), 30)
+    assert memory.memory.occupancy.frames == 1
+    with memory.map_lock:  # a frame being integrated all along
+        assert done_within(lambda: memory.on_observation(observations[0]), 30)
+    assert len(memory.memory.fusion.prims) > 0 and memory.n == 2
+
+
+def test_an_observation_of_the_frame_in_registration_waits_for_its_correction(memory, updates):
+    obs = next(m for kind, m in updates if kind == "observation")
+    memory.registering = obs.frame_seq  # its frame is being registered
+    fused = threading.Event()
+    threading.Thread(target=lambda: (memory.on_observation(obs), fused.set()), daemon=True).start()
+    assert not fused.wait(0.5)  # it waits ...
+    memory._registered()  # ... for the correction, not for the map
+    assert fused.wait(10)
+    # a newer frame in registration does not hold it up: its correction is not this one's
+    memory.registering = obs.frame_seq + 1
+    assert done_within(lambda: memory.on_observation(obs), 10)
