@@ -268,3 +268,19 @@ def test_rays_cross_saturated_free_blocks_in_one_step_and_change_nothing(monkeyp
     restored = OccupancyMap.__new__(OccupancyMap)
     restored.__setstate__(skipping.__getstate__())
     assert np.array_equal(restored._saturated, skipping._saturated)
+
+
+@pytest.mark.parametrize("n", [0, 3, 8, 1001, 65_539])
+def test_a_snapshot_packs_the_known_voxels_as_numpy_would(n):
+    """The snapshot's compiled packing (four voxels at a time where all are unknown) against
+    numpy's packbits and compress, on sizes that are no multiple of 4 or 8."""
+    from services.scene_memory.occupancy import UNKNOWN, _pack_known
+
+    rng = np.random.default_rng(n)
+    flat = np.full(n, UNKNOWN, np.int16)
+    known = rng.random(n) < 0.1
+    known[-1:] = True  # the tail past the last whole word too
+    flat[known] = rng.integers(-2000, 2000, known.sum())
+    bits, values = _pack_known(flat)
+    assert np.array_equal(bits, np.packbits(flat != UNKNOWN))
+    assert np.array_equal(values, flat[flat != UNKNOWN])
