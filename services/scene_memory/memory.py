@@ -196,6 +196,9 @@ class SceneMemory:
             self._cloud_index = np.sort(self._cloud_keys)
         return self._cloud_index
 
+    #: arrays a snapshot keeps without a copy: the cloud's are replaced, never written in place
+    SNAPSHOT_AS_IS = frozenset({"cloud", "colours", "viewpoints"})
+
     def __getstate__(self) -> dict:
         """Snapshots leave the cloud's voxel keys out: ``_index`` rebuilds them."""
         state = dict(self.__dict__)

@@ -658,6 +658,9 @@ class OccupancyMap:
         if hasattr(self, "L"):  # restored: which blocks the map's values saturate
             _saturate(self.L, self._saturated, np.arange(blocks, dtype=np.int64), self._milli[2])
 
+    #: the known voxels' mask and values are made for each snapshot: kept without a copy
+    SNAPSHOT_AS_IS = frozenset({"_known", "_values"})
+
     def __getstate__(self) -> dict:
         """Snapshots hold the known voxels only (a bit mask and their values) and no scratch:
         a 56 M-voxel map that has seen a few views pickles to a fraction of its 112 MB."""

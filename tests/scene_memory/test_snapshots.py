@@ -149,6 +149,8 @@ def test_a_snapshot_written_while_updates_go_on_restores_everything(
         eight = reference(updates[:8])
         assert summary(state.scene(8, 8.0)) == summary(eight.scene(8, 8.0))
         assert np.array_equal(state.occupancy.L, eight.occupancy.L)
+        # the cloud, kept without a copy (replaced by each frame, never written in place)
+        assert np.array_equal(state.cloud, eight.cloud) and len(eight.cloud) < len(live.cloud)
     for _, kind, payload in records:
         SceneMemoryNode._apply(state, kind, payload)
     assert summary(state.scene(12, 12.0)) == summary(full.scene(12, 12.0))
@@ -191,3 +193,16 @@ def test_an_observation_replays_with_the_correction_it_was_fused_with(updates):
     plain = reference(updates[:k])
     plain.fuse(obs, None)
     assert summary(unmoved.scene()) == summary(plain.scene())
+
+
+def test_a_capture_copies_every_array_but_those_replaced_or_made_for_it(memories):
+    """The cloud (replaced by each frame, never written in place) and the map's packed known
+    voxels (made for the snapshot) are kept as they are; every other array is a copy."""
+    _, full = memories
+    _, arrays = state_file.capture(full)
+    kept = [a for a in arrays if a is full.cloud or a is full.colours or a is full.viewpoints]
+    assert len(kept) == 3
+    live = [v for v in vars(full.fusion).values() if isinstance(v, np.ndarray)]
+    live += [full.occupancy.L, *(v for v in vars(full).values() if isinstance(v, np.ndarray))]
+    shared = [a for a in arrays if any(np.shares_memory(a, b) for b in live)]
+    assert len(shared) == 3, [a.shape for a in shared]
