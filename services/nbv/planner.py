@@ -11,6 +11,7 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -20,6 +21,12 @@ from services.nbv import topdown, view_sphere
 from services.nbv.kinematics import HeadIK, HeadSolution
 from services.nbv.path_cost import FloorMap, PathPlanner
 from services.nbv.utility import utility
+
+
+def _timed(fn: Callable[..., Any], *args: Any) -> tuple[Any, float]:
+    """(fn(*args), the seconds it took)."""
+    t0 = time.perf_counter()
+    return fn(*args), time.perf_counter() - t0
 
 
 def seed_ompl(seed: int) -> None:
@@ -267,6 +274,14 @@ class Planner:
         )
         return PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
 
+    def reachable_candidates(
+        self, states, origin, voxel, current, bases: np.ndarray
+    ) -> tuple[PathPlanner, np.ndarray]:
+        """The path planner on this map, and the indices of the platform poses a path may
+        reach (``PathPlanner.maybe_reachable``)."""
+        planner = self.path_planner(states, origin, voxel, current)
+        return planner, np.flatnonzero(planner.maybe_reachable(current, bases))
+
     @staticmethod
     def path_costs(
         planner: PathPlanner, current, bases: np.ndarray
@@ -300,7 +315,7 @@ class Planner:
         times["sampling_ms"] = (time.perf_counter() - t0) * 1e3
         # a view whose platform pose is in collision, or in a free region the robot is not in,
         # has c = ∞ whatever its gain (every strategy drops it): IG is predicted for the others
-        # only (in a booth, 1 view in 4), theirs stays 0. The floor map that tells, and then
+        # only (in the booth, 1-2 views in 4), theirs stays 0. The floor map that tells, and then
         # the path costs (OMPL, Python), run on a second thread beside the skip map's build and
         # the ray casting (whose kernels release the GIL): they fill the cores' gaps instead of
         # following them; one thread, in order, as before: OMPL draws the same.
@@ -309,24 +324,13 @@ class Planner:
         planner: PathPlanner | None = None
         try:
             with ThreadPoolExecutor(1, thread_name_prefix="nbv-paths") as pool:
-
-                def floor() -> tuple[PathPlanner, np.ndarray, float]:
-                    t = time.perf_counter()
-                    p = self.path_planner(states, origin, voxel, current)
-                    maybe = np.flatnonzero(p.maybe_reachable(current, cands.base))
-                    return p, maybe, time.perf_counter() - t
-
-                def costs() -> tuple[tuple[np.ndarray, list], float]:
-                    t = time.perf_counter()
-                    return self.path_costs(planner, current, cands.base[maybe]), (
-                        time.perf_counter() - t
-                    )
-
-                floor_job = pool.submit(floor)
+                floor_job = pool.submit(_timed, self.reachable_candidates, states, origin, voxel,
+                                        current, cands.base)  # fmt: skip
                 t1 = time.perf_counter()
                 skip = ig.SkipMap.build(states, origin, voxel, c.roi)
-                planner, maybe, floor_s = floor_job.result()
-                costs_job = pool.submit(costs)
+                (planner, maybe), floor_s = floor_job.result()
+                bases = cands.base[maybe]
+                costs_job = pool.submit(_timed, self.path_costs, planner, current, bases)
                 if len(maybe):
                     gain[maybe], _ = ig.hierarchical(
                         states, origin, voxel, cands.poses[maybe], c.intrinsics, c.max_range,
