@@ -72,4 +72,8 @@ CMD ["-c", "/etc/avs/router-tcp.json5"]
 FROM runtime AS avs
 USER avs
 WORKDIR /home/avs
+# the services' compiled kernels, into the image's numba cache (~/.cache/avs/numba): a container
+# starts in seconds instead of compiling them at every start (a minute with six at once on two
+# cores); a machine with another CPU recompiles what does not fit it, as numba does
+RUN avs warm-up
 CMD ["avs", "--help"]

@@ -23,6 +23,7 @@ from avs.commands import (
     status,
     up,
     view,
+    warm_up,
 )
 from avs.commands._args import OneLineParser
 from services.common.log import setup_logging
@@ -44,6 +45,7 @@ COMMANDS = (
     view,
     replay_bag,
     schema,
+    warm_up,
 )
 
 

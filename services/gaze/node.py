@@ -70,21 +70,27 @@ GAUGE_EVERY = 50
 OKR_MAX_ERROR = math.radians(1.0)
 
 
+def build_stabiliser(settings: GazeSettings) -> GazeStabiliser:
+    """The stabiliser as ``settings`` configure it (the node's, and ``avs warm-up``'s)."""
+    cameras = settings.fixating()
+    return GazeStabiliser(
+        GazeKinematics(robot_mjcf(settings.robot), cameras),
+        StabiliserConfig(
+            HEAD_JOINTS[settings.robot], cameras, gain=settings.gain, damping=settings.damping,
+            eye_weight=settings.eye_weight, vor_gain=settings.vor_gain,
+            okr_gain=settings.okr_gain, odometry=settings.odometry,
+            speed=JOINT_SPEED.get(settings.robot, {}),
+        ),
+    )  # fmt: skip
+
+
 class GazeNode:
     def __init__(self, node: Node, settings: GazeSettings) -> None:
         self.node, self.s = node, settings
         cameras = settings.fixating()
-        self.kin = GazeKinematics(robot_mjcf(settings.robot), cameras)
         self.joints = HEAD_JOINTS[settings.robot]
-        self.stab = GazeStabiliser(
-            self.kin,
-            StabiliserConfig(
-                self.joints, cameras, gain=settings.gain, damping=settings.damping,
-                eye_weight=settings.eye_weight, vor_gain=settings.vor_gain,
-                okr_gain=settings.okr_gain, odometry=settings.odometry,
-                speed=JOINT_SPEED.get(settings.robot, {}),
-            ),
-        )  # fmt: skip
+        self.stab = build_stabiliser(settings)
+        self.kin = self.stab.kin
         self.stab.warm_up()  # before any input: the first control step must be on time
         self.okr_camera = settings.okr_camera or cameras[0]
         if self.okr_camera not in cameras:

@@ -36,36 +36,41 @@ from services.nbv.planner import Planner, PlannerConfig
 log = logging.getLogger("avs.nbv")
 
 
+def build_planner(settings: NbvSettings) -> Planner:
+    """The planning core as ``settings`` configure it (the node's, and ``avs warm-up``'s)."""
+    return Planner(
+        PlannerConfig(
+            radius=settings.radius,
+            sampling=settings.sampling,
+            strategy=settings.strategy,
+            lam=settings.lam,
+            lambda_s=settings.lambda_s,
+            lambda_quality=settings.lambda_quality,
+            max_views=settings.max_views,
+            k=settings.k,
+            samples=settings.samples,
+            every=settings.every,
+            best_k=settings.best_k,
+            ig_measure=settings.ig_measure,
+            max_range=settings.max_range,
+            seed=settings.seed,
+            roi=(np.array(settings.roi_min), np.array(settings.roi_max))
+            if settings.roi_min and settings.roi_max
+            else None,
+            workspace=(np.array(settings.workspace_min), np.array(settings.workspace_max))
+            if settings.workspace_min and settings.workspace_max
+            else None,
+        ),
+        robot_mjcf(settings.robot),
+        settings.camera,
+        settings.robot,
+    )
+
+
 class NbvNode:
     def __init__(self, node: Node, settings: NbvSettings) -> None:
         self.node, self.s = node, settings
-        self.planner = Planner(
-            PlannerConfig(
-                radius=settings.radius,
-                sampling=settings.sampling,
-                strategy=settings.strategy,
-                lam=settings.lam,
-                lambda_s=settings.lambda_s,
-                lambda_quality=settings.lambda_quality,
-                max_views=settings.max_views,
-                k=settings.k,
-                samples=settings.samples,
-                every=settings.every,
-                best_k=settings.best_k,
-                ig_measure=settings.ig_measure,
-                max_range=settings.max_range,
-                seed=settings.seed,
-                roi=(np.array(settings.roi_min), np.array(settings.roi_max))
-                if settings.roi_min and settings.roi_max
-                else None,
-                workspace=(np.array(settings.workspace_min), np.array(settings.workspace_max))
-                if settings.workspace_min and settings.workspace_max
-                else None,
-            ),
-            robot_mjcf(settings.robot),
-            settings.camera,
-            settings.robot,
-        )
+        self.planner = build_planner(settings)
         self.planner.warm_up()  # the kernels now, not in the first step of an episode
         self.lock = threading.Lock()
         self.base: BasePose | None = None
