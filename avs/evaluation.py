@@ -75,19 +75,18 @@ def merge_points(sets: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
     return {k: np.concatenate(v) for k, v in out.items()}
 
 
-def in_obb(p: Primitive, points: np.ndarray, margin: float = OBB_MARGIN) -> np.ndarray:
+def obb_excess(p: Primitive, points: np.ndarray) -> np.ndarray:
+    """How far each point lies outside OBB(ψ), along the axis it is furthest out on (m; ≤ 0
+    inside): it is in the box grown by a margin m where this is ≤ m."""
     local = (points - p.obb.center) @ p.obb.rotation
-    return np.all(np.abs(local) <= p.obb.extent / 2 + margin, axis=1)
+    return (np.abs(local) - p.obb.extent / 2).max(axis=1)
 
 
-def explained(p: Primitive, points: np.ndarray, delta: float = DELTA) -> np.ndarray:
-    """Which points ψ explains: near its surface and inside its OBB."""
-    return in_obb(p, points, delta) & (p.model.distance(points) < delta)
-
-
-def inlier(segment: np.ndarray, p: Primitive) -> float:
-    """Inlier(G_i, ψ) = |G_i ∩ OBB(ψ)| / |G_i| (Eq. 3.8)."""
-    return float(in_obb(p, segment).mean()) if len(segment) else 0.0
+def _x_reach(p: Primitive, margin: float) -> tuple[float, float]:
+    """The world x interval that holds OBB(ψ) grown by ``margin`` on each side (with 1 mm to
+    spare for a rotation a little off orthonormal): no point outside it is within the margin."""
+    half = np.abs(np.asarray(p.obb.rotation)[0]) @ (np.asarray(p.obb.extent) / 2 + margin)
+    return p.obb.center[0] - half - 1e-3, p.obb.center[0] + half + 1e-3
 
 
 @dataclass
@@ -119,24 +118,35 @@ def score_primitives(
         return Scores(0.0, 0.0, {}, {}, 0.0 if primitives else 1.0)
     cloud = np.concatenate([segments[n] for n in names])
     owner = np.concatenate([np.full(len(segments[n]), i) for i, n in enumerate(names)])
+    sizes = np.array([len(segments[n]) for n in names])
+    # the points by x: each primitive tests only those within its OBB's reach along x (an
+    # episode's labelled cloud has millions, a primitive's box holds a few thousand)
+    order = np.argsort(cloud[:, 0], kind="stable")
+    xs = cloud[order, 0]
     covered = np.zeros((len(names), len(primitives)))
     jaccard = np.zeros((len(names), len(primitives)))
     bodies: dict[int, str] = {}
     merged: dict[int, list[str]] = {}
     for j, p in enumerate(primitives):
-        mask = explained(p, cloud, delta)
-        counts = np.bincount(owner[mask], minlength=len(names))
-        if mask.sum():
+        near = order[slice(*np.searchsorted(xs, _x_reach(p, max(delta, OBB_MARGIN))))]
+        points = cloud[near]
+        excess = obb_excess(p, points)
+        # explained by ψ: inside its OBB (grown by delta) and within delta of its surface
+        candidates = np.flatnonzero(excess <= delta)
+        explained = candidates[p.model.distance(points[candidates]) < delta]
+        counts = np.bincount(owner[near[explained]], minlength=len(names))
+        n_explained = len(explained)
+        if n_explained:
             best = int(np.argmax(counts))
-            if counts[best] > 0.5 * mask.sum():
+            if counts[best] > 0.5 * n_explained:
                 bodies[p.id] = names[best]
-            spanned = np.flatnonzero(counts >= MERGED_SHARE * mask.sum())
+            spanned = np.flatnonzero(counts >= MERGED_SHARE * n_explained)
             if len(spanned) >= 2:
                 merged[p.id] = sorted(names[i] for i in spanned)
-        for i, n in enumerate(names):
-            covered[i, j] = inlier(segments[n], p)
-            union = len(segments[n]) + mask.sum() - counts[i]
-            jaccard[i, j] = counts[i] / union if union else 0.0
+        inside = np.bincount(owner[near[excess <= OBB_MARGIN]], minlength=len(names))
+        covered[:, j] = inside / np.maximum(sizes, 1)  # Inlier(G_i, ψ) = |G_i ∩ OBB(ψ)| / |G_i|
+        union = sizes + n_explained - counts
+        jaccard[:, j] = np.where(union > 0, counts / np.maximum(union, 1), 0.0)
     match = {n: primitives[int(np.argmax(covered[i]))].id for i, n in enumerate(names)}
     rows = [i for i, n in enumerate(names) if scope is None or n in scope] or list(
         range(len(names))
