@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -64,6 +65,10 @@ class GazeExperimentConfig:
     sensors: bool = True  # the robot's sensor models (noise, bias, latency), else exact state
     state_rate: float = 200.0  # joint states per second with the sensor models (the sim's)
     seed: int = 0
+
+
+#: frame pairs whose flow may be pending at once (each pair holds two 3.7 MB frames)
+FLOWS_AHEAD = 8
 
 
 @dataclass
@@ -175,6 +180,11 @@ def run_object(
     offsets = np.unique(np.round(np.linspace(-span, 0, c.subframes)).astype(int))
     run = ObjectRun([], [], [], [], [], [], [])
     light, prev = None, None
+    # the optical flow of each frame pair (OpenCV's Farnebäck: 70 ms a pair, on one core,
+    # the GIL let go) on a thread of its own while the simulation goes on; a few pairs ahead
+    # at most, each flow in its frame's place
+    flows: deque[Future] = deque()
+    pool = ThreadPoolExecutor(1, thread_name_prefix="flow")
     for k in range(1, steps + 1):
         if c.stabilize:
             control()
@@ -196,11 +206,15 @@ def run_object(
             to, z = target - T[:3, 3], T[:3, 2]
             run.error_deg.append(math.degrees(math.atan2(np.linalg.norm(np.cross(z, to)), z @ to)))
             if prev is not None:
-                run.flow.append(flow_rmse_deg_s(prev, frame, deg_per_px, fps))
+                flows.append(pool.submit(flow_rmse_deg_s, prev, frame, deg_per_px, fps))
+                while len(flows) > FLOWS_AHEAD:
+                    run.flow.append(flows.popleft().result())
             prev = frame
             if progress is not None:
                 progress(k / steps)
     renderer.close()
+    run.flow += [f.result() for f in flows]
+    pool.shutdown()
     if progress is not None:
         progress(1.0)
     return run
