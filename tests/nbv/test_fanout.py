@@ -4,19 +4,26 @@ with one instance."""
 
 from __future__ import annotations
 
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
 import pytest
 
 from avs.explore import Episode, EpisodeConfig
 
 
+def _views(workers: int, out: Path) -> list[dict]:
+    config = EpisodeConfig(scene="tabletop_occluded", views=3, voxel=0.02, out=out,
+                           scale={"nbv": workers})  # fmt: skip
+    return Episode(config).run().to_json()["views"]
+
+
 @pytest.mark.timeout(600)
 def test_two_nbv_workers_choose_the_views_one_chooses(tmp_path):
-    runs = {}
-    for n in (1, 2):
-        config = EpisodeConfig(scene="tabletop_occluded", views=3, voxel=0.02,
-                               out=tmp_path / f"nbv{n}", scale={"nbv": n})  # fmt: skip
-        runs[n] = Episode(config).run().to_json()["views"]
-    one, two = runs[1], runs[2]
+    # both episodes at once, each with its own router and services (as `avs compare --jobs 2`)
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+        one, two = pool.map(_views, (1, 2), (tmp_path / "nbv1", tmp_path / "nbv2"))
     assert len(one) == len(two) >= 2
     for a, b in zip(one[1:], two[1:], strict=True):  # view 0 is the start view
         assert a["base"] == pytest.approx(b["base"], abs=1e-6)
