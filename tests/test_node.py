@@ -260,6 +260,30 @@ def test_an_inbox_gives_its_loop_the_valid_samples_in_order_and_counts_the_rest(
     assert node.metrics.snapshot().dropped == {"malformed": 1, "inbox_full": 1}
 
 
+def test_a_loop_taking_from_an_inbox_while_the_node_closes_ends_quietly(router):
+    """close() undeclares the inputs first, then joins the threads: a loop inside ``take()``
+    at that moment must end as it would on a closed input, not die with PyO3's "Already
+    mutably borrowed" (the sim's physics loop did, at the end of a pipeline run; here 2 of 150
+    closes raised it before the fix)."""
+    errors: list[str] = []
+    for i in range(400):
+        settings = ServiceSettings(mode="client", connect=[router], multicast=False,
+                                   instance=f"closing{i}")  # fmt: skip
+        node = Node("closing", settings)
+        inbox = node.inbox(Keys().imu(), ImuSample, size=8)
+
+        def loop(node=node, inbox=inbox) -> None:
+            try:
+                while not node.stopping:
+                    inbox.take()
+            except Exception as e:  # what the test looks for
+                errors.append(repr(e))
+
+        node._start_thread(loop, "closing:loop")
+        node.close()
+    assert errors == []
+
+
 def test_an_inbox_read_on_demand_decodes_only_the_newest_valid_sample(node, client):
     """``newest()``: garbage after the last good sample cannot hide it; the older samples are
     not decoded (counted in and as ``unread``); nothing new gives None."""

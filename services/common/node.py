@@ -83,6 +83,11 @@ class Inbox(Generic[M]):
                 waiting.append(sample)
         except zenoh.ZError:  # closed: the node is stopping
             pass
+        except RuntimeError:
+            # "Already mutably borrowed": close() undeclared the subscriber on another thread
+            # while this one read it (the sim's physics loop crashed so at the end of a run)
+            if not self._node.stopping:
+                raise
         return waiting
 
     def _valid(self, sample: zenoh.Sample) -> M | None:
