@@ -333,6 +333,16 @@ class Episode:
             raise RuntimeError(f"sim/control {kw}: {status.error}")
         return status
 
+    def _step(self, session, n: int, base: Latest, joints: Latest) -> None:
+        """Step the lockstep sim ``n`` times and wait for the platform and joint states it
+        published: a decision on a state still on its way would make the episode depend on
+        the machine's load (the reply can overtake the streams)."""
+        status = self._sim(session, op="step", n=n)
+        for latest, stream in ((base, "base"), (joints, "joints")):
+            seq = status.published.get(stream)
+            if seq is not None:
+                latest.wait(lambda m, s=seq: m.seq >= s, 30, f"the sim's {stream} state {seq}")
+
     def _settle(
         self, session, base: Latest, joints: Latest, nbv: NextBestView, goal: str, trajectory: list
     ) -> bool:
@@ -343,7 +353,7 @@ class Episode:
         targets = dict(zip(nbv.joint_names, nbv.joint_positions, strict=True))
         steps = int((2 * nbv.cost + 10) / 0.1)
         for _ in range(steps):
-            self._sim(session, op="step", n=100)
+            self._step(session, 100, base, joints)
             if base.value is not None:
                 trajectory.append([round(base.value.x, 3), round(base.value.y, 3)])
             b, j = base.value, joints.value
@@ -367,7 +377,7 @@ class Episode:
             )
         )
         for _ in range(40):
-            self._sim(session, op="step", n=100)
+            self._step(session, 100, base, joints)
             j = joints.value
             pos = dict(zip(j.names, j.position, strict=True))
             if (

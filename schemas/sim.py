@@ -101,3 +101,6 @@ class SimStatus(Message):
     sim_time: float = Field(ge=0)
     steps: int = Field(ge=0)
     paused: bool = False
+    #: the seq of the newest message each state stream ("imu", "joints", "base") has put on the
+    #: wire since the reset: a lockstep driver waits for these before it reads the streams
+    published: dict[str, int] = Field(default_factory=dict)

@@ -20,6 +20,7 @@ from concurrent.futures import Future
 from typing import Any
 
 import numpy as np
+import zenoh
 
 from schemas import (
     ArmCommand,
@@ -105,10 +106,15 @@ class SimNode:
             self.robot.camera(c)  # raises on an unknown camera
         k = node.keys
         self.out_frames = {c: node.publisher(k.rgbd(c)) for c in self.cameras}
-        self.out_imu = node.publisher(k.imu())
-        self.out_joints = node.publisher(k.joints())
-        self.out_base = node.publisher(k.base_state())
-        self.seq: dict[str, int] = {}
+        # on the wall clock a late 1 kHz sample is worth nothing and is dropped under congestion
+        # (the key table's QoS); in lockstep the driver decides on what the streams say, so
+        # they wait for a slow subscriber (and the sim with them) rather than lose a sample
+        qos = {"congestion_control": zenoh.CongestionControl.BLOCK} if settings.lockstep else {}
+        self.out_imu = node.publisher(k.imu(), **qos)
+        self.out_joints = node.publisher(k.joints(), **qos)
+        self.out_base = node.publisher(k.base_state(), **qos)
+        self.seq: dict[str, int] = {}  # the newest seq given to a message of each stream
+        self.published: dict[str, int] = {}  # ... and the newest put on the wire
         self._gt_cache: tuple[np.ndarray, list, list] | None = None
         node.subscribe(k.cmd_base(), (BaseGoal, BaseVelocity), self.on_cmd_base)
         # on the wall clock, head commands (1 kHz from the gaze) wait for the physics loop,
@@ -149,6 +155,10 @@ class SimNode:
         self.seq[stream] = self.seq.get(stream, -1) + 1
         return self.seq[stream]
 
+    def _sent(self, stream: str) -> None:
+        """The newest message of ``stream`` (the one given the latest seq) went out."""
+        self.published[stream] = self.seq[stream]
+
     # -- physics ------------------------------------------------------------------------------
 
     def _every(self, rate: float) -> int:
@@ -169,8 +179,9 @@ class SimNode:
             if w.steps % state_every == 0:
                 self.publish_state()
             if self.sensors is not None:  # joint states whose latency has passed
-                for js in self.sensors.joint_states.due(w.time):
+                for seq, js in self.sensors.joint_states.due(w.time):
                     self.out_joints.put_raw(js)
+                    self.published["joints"] = seq
 
     def physics_loop(self) -> None:
         """Keep sim time on the wall clock (times --speed); slip rather than burst when behind."""
@@ -220,6 +231,7 @@ class SimNode:
             linear_acceleration=acc,
             orientation=quat,
         )
+        self._sent("imu")
 
     def publish_state(self) -> None:
         w, sensors = self.world, self.sensors
@@ -231,9 +243,10 @@ class SimNode:
             seq=self._next_seq("joints"), stamp=w.time, names=names, position=q, velocity=qd,
         )  # fmt: skip
         if sensors is not None:  # published when its latency has passed (advance)
-            sensors.joint_states.push(w.time, js)
+            sensors.joint_states.push(w.time, (self.seq["joints"], js))
         else:
             self.out_joints.put_raw(js)
+            self._sent("joints")
         x, y, yaw, vx, vy, vyaw = w.base_pose()
         if sensors is not None:  # what the odometry believes
             x, y, yaw = sensors.odometry.update((x, y, yaw))
@@ -252,6 +265,7 @@ class SimNode:
             goal_id=w.base.goal_id,
             goal_status=w.base.status,
         )
+        self._sent("base")
 
     def frame(self, renderer: CameraRenderer, camera: str) -> RgbdFrame:
         """Render one camera at the current state (render thread only)."""
@@ -342,6 +356,7 @@ class SimNode:
             sim_time=self.world.time,
             steps=self.world.steps,
             paused=self.paused,
+            published=dict(self.published),
         )
 
     def on_control(self, request: SimControl | None) -> SimStatus:
@@ -362,6 +377,7 @@ class SimNode:
                 self.rng = np.random.default_rng(seed)
                 self.sensors = self._sensors(seed)
                 self.seq.clear()
+                self.published.clear()
                 self._gt_cache = None
             return self.status()
         if op == "step":

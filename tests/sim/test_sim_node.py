@@ -148,6 +148,8 @@ def test_commands_and_streams_over_zenoh(client, router, procs):
     wait_for(lambda: _metric_drops(client, "cmd") >= 2, 30, "the sim to take the commands")
     status = control(client, op="step", n=4000)
     assert status.sim_time == pytest.approx(4.0, abs=1e-6)
+    # the reply names the newest sample of each stream, for a driver to wait for
+    assert status.published == {"imu": 3999, "joints": 799, "base": 799}
     # a billion steps would hold the sim for hours: refused before any work, naming the limit
     huge = SimControl.model_construct(**{**SimControl(op="step").model_dump(), "n": 10**9})
     (reply,) = client.get(KEYS.sim_control(), payload=encode(huge), timeout=10)
@@ -284,7 +286,9 @@ def test_sensor_models_over_zenoh(client, router, procs):
     imu, joints, base = (
         Collector(client, k) for k in (KEYS.imu(), KEYS.joints(), KEYS.base_state())
     )
-    control(client, op="step", n=2000)  # still
+    status = control(client, op="step", n=2000)  # still
+    # the joint state measured at 2.000 s (seq 399) is not out yet
+    assert status.published == {"imu": 1999, "joints": 398, "base": 399}
     wait_for(lambda: imu.count() >= 2000, 30, "the IMU", state=imu.count)
     gyro = np.array([s.angular_velocity for s in imu.messages()])
     density = np.diff(gyro, axis=0).std(axis=0) / np.sqrt(2) * np.sqrt(1e-3)
@@ -309,3 +313,40 @@ def test_sensor_models_over_zenoh(client, router, procs):
     assert (believed.x, believed.y) == pytest.approx((-0.8, 0.0), abs=0.02)
     drift = np.linalg.norm(gt.T_world_odom[:2, 3])
     assert 0.003 < drift < 0.03, drift  # ~1.5 % of the ~0.9 m driven
+
+
+def test_lockstep_streams_wait_for_a_stalled_subscriber(procs):
+    """In lockstep nothing is late, so nothing may be lost: a subscriber that stalls while the
+    sim steps (small socket buffers, so the backlog cannot hide in them) still receives every
+    IMU sample, in order. On the key table's drop-on-congestion QoS it got 1 in 10."""
+    import json
+
+    from tests.conftest import free_port, session_config
+
+    small = json.dumps({"so_sndbuf": 65536, "so_rcvbuf": 65536})
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router_config = session_config("router", listen=[endpoint])
+    router_config.insert_json5("transport/link/tcp", small)
+    client_config = session_config("client", connect=[endpoint])
+    client_config.insert_json5("transport/link/tcp", small)
+    with zenoh.open(router_config), zenoh.open(client_config) as client:
+        sim = start_sim(procs, endpoint, "--lockstep", "--scene", "tabletop_clutter",
+                        instance="stall")  # fmt: skip
+        wait_alive(client, "stall", sim)
+        seqs: list[int] = []
+        release = threading.Event()
+
+        def stalled(sample: zenoh.Sample) -> None:
+            if not seqs:  # the first sample holds this session's receiving for 3 s
+                release.wait(3.0)
+            seqs.append(decode(sample.payload.to_bytes(), ImuSample).seq)
+
+        sub = client.declare_subscriber(KEYS.imu(), stalled)
+        status = control(client, op="step", n=5000)
+        release.set()
+        assert status.steps == 5000
+        wait_for(lambda: len(seqs) >= 5000, 30, "the IMU samples", state=lambda: len(seqs))
+        assert seqs == list(range(5000))
+        sub.undeclare()
+        sim.terminate()
+        assert sim.wait(30) == 0
