@@ -37,6 +37,34 @@ def test_ig_equals_a_brute_force_traversal_on_a_random_map(box):
         assert gain == sum(per_ray) and gain > 100
 
 
+def test_uniform_octants_of_mixed_blocks_are_crossed_without_changing_the_count():
+    """Every 8³ block mixed (an occupied voxel in one of its 4³ octants), the other octants
+    uniformly unknown or free: rays cross those in one step each (``subcodes``), ending in
+    them too (range, roi), and count what a voxel-by-voxel traversal counts. The grid's size
+    is no multiple of 8 (its edge blocks' octants stay MIXED)."""
+    rng = np.random.default_rng(3)
+    cells = rng.choice([0, 1], p=[0.55, 0.45], size=(15, 13, 11))  # 4³ octants: unknown/free
+    states = np.repeat(np.repeat(np.repeat(cells, 4, 0), 4, 1), 4, 2).astype(np.uint8)
+    states = states[:58, :50, :41].copy()
+    for i, j, k in np.ndindex(8, 7, 6):  # one occupied voxel in octant 0 of every block
+        states[8 * i, 8 * j, 8 * k] = 2
+    skip = SkipMap.build(states, ORIGIN, VOXEL)
+    octants = skip.subcodes.reshape(-1, 8)
+    assert np.all(skip.codes == MIXED) and np.all(octants[:, 0] == MIXED)
+    whole = [b for b in range(len(octants)) if not np.all(octants[b] == MIXED)]
+    assert len(whole) == 7 * 6 * 5  # the blocks inside the grid
+    assert np.isin(octants[whole, 1:], [0, 1]).all()  # PASS, COUNT
+    centre = np.array([0.0033, 0.0041, 0.2017])
+    views = [vs.view_pose(centre, np.array(t)) for t in ([0.25, 0.1, 0.15], [-0.2, -0.17, 0.3])]
+    rays = pixel_rays(64, 48, 58.0, 58.0, 31.5, 23.5, every=7)
+    box = (np.array([-0.13, -0.11, 0.03]), np.array([0.151, 0.122, 0.33]))
+    for max_range, b in ((0.5, None), (0.23, None), (0.5, box)):
+        ours = information_gain(states, ORIGIN, VOXEL, np.array(views), rays, max_range, b)
+        for T, gain in zip(views, ours, strict=True):
+            ref = sum(brute_force_gain(states, ORIGIN, VOXEL, T, d, max_range, b) for d in rays)
+            assert gain == ref and gain > 100
+
+
 def test_the_first_occupied_voxel_stops_a_ray_and_range_limits_it():
     states = np.zeros((100, 10, 10), np.uint8)  # all unknown, 1 m along x
     T = vs.view_pose(np.array([0.905, 0.05, 0.05]), np.array([-0.9, 0.0, 0.0]))  # looks +x
