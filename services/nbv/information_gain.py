@@ -288,15 +288,33 @@ def ray_gain(
         bx, by, bz = ix >> 3, iy >> 3, iz >> 3
         here = (bx * gby + by) * gbz + bz
         s = PASS  # the class of the voxel entered at t when it is stepped through alone
-        if here != block and codes[here] != MIXED:  # a uniform block: cross its cube at once
+        # a uniform cube to cross at once: its code and the voxel steps left in it per axis
+        code, nxl, nyl, nzl = MIXED, 0, 0, 0
+        if here != block and codes[here] != MIXED:  # a uniform block: the cube ahead of it
             block = here
+            code = codes[here]
             r = np.int64(radii[octant, here])
             nxl = _steps_left(ix, sx, nx, bx - r, bx + r)
             nyl = _steps_left(iy, sy, ny, by - r, by + r)
             nzl = _steps_left(iz, sz, nz, bz - r, bz + r)
+        else:
+            block = here
+            octant_here = (here << 3) | ((ix >> 2 & 1) << 2) | ((iy >> 2 & 1) << 1) | (iz >> 2 & 1)
+            if octant_here != sub and subcodes[octant_here] != MIXED:  # a uniform 4³ octant
+                sub = octant_here
+                code = subcodes[octant_here]
+                nxl = _steps_left_4(ix, sx, nx)
+                nyl = _steps_left_4(iy, sy, ny)
+                nzl = _steps_left_4(iz, sz, nz)
+            else:
+                s = classes[(here << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7)]
+                if s == STOP:
+                    break
+                count += s  # COUNT is 1, PASS 0
+        if code != MIXED:
             leave = min(tmx + nxl * tdx, tmy + nyl * tdy, tmz + nzl * tdz)
             if leave > limit:  # the ray ends in the cube
-                if codes[here] == COUNT:
+                if code == COUNT:
                     count += 1 + _crossings(tmx, itx, limit, nxl)
                     count += _crossings(tmy, ity, limit, nyl) + _crossings(tmz, itz, limit, nzl)
                     volume += _cube(t0 + limit) - _cube(t0 + t)
@@ -304,7 +322,7 @@ def ray_gain(
             kx = _crossings(tmx, itx, leave, nxl)
             ky = _crossings(tmy, ity, leave, nyl)
             kz = _crossings(tmz, itz, leave, nzl)
-            if codes[here] == COUNT:
+            if code == COUNT:
                 count += 1 + kx + ky + kz
                 volume += _cube(t0 + leave) - _cube(t0 + t)
             ix += sx * kx
@@ -313,39 +331,6 @@ def ray_gain(
             tmx += tdx * kx
             tmy += tdy * ky
             tmz += tdz * kz
-        else:
-            block = here
-            octant_here = (here << 3) | ((ix >> 2 & 1) << 2) | ((iy >> 2 & 1) << 1) | (iz >> 2 & 1)
-            code = subcodes[octant_here]
-            if octant_here != sub and code != MIXED:  # a uniform octant: crossed at once
-                sub = octant_here
-                nxl = _steps_left_4(ix, sx, nx)
-                nyl = _steps_left_4(iy, sy, ny)
-                nzl = _steps_left_4(iz, sz, nz)
-                leave = min(tmx + nxl * tdx, tmy + nyl * tdy, tmz + nzl * tdz)
-                if leave > limit:  # the ray ends in the octant
-                    if code == COUNT:
-                        count += 1 + _crossings(tmx, itx, limit, nxl)
-                        count += _crossings(tmy, ity, limit, nyl) + _crossings(tmz, itz, limit, nzl)
-                        volume += _cube(t0 + limit) - _cube(t0 + t)
-                    return count, volume
-                kx = _crossings(tmx, itx, leave, nxl)
-                ky = _crossings(tmy, ity, leave, nyl)
-                kz = _crossings(tmz, itz, leave, nzl)
-                if code == COUNT:
-                    count += 1 + kx + ky + kz
-                    volume += _cube(t0 + leave) - _cube(t0 + t)
-                ix += sx * kx
-                iy += sy * ky
-                iz += sz * kz
-                tmx += tdx * kx
-                tmy += tdy * ky
-                tmz += tdz * kz
-            else:
-                s = classes[(here << 9) | ((ix & 7) << 6) | ((iy & 7) << 3) | (iz & 7)]
-                if s == STOP:
-                    break
-                count += s  # COUNT is 1, PASS 0
         enter = t
         # the step to the nearest boundary, branch-free (selects, not jumps: which axis comes
         # next follows no pattern a branch predictor could learn)
