@@ -30,6 +30,8 @@ M = TypeVar("M", bound=Message)
 
 #: samples a latest-only input keeps waiting: the newest valid one of them is handled
 LATEST_RING = 16
+#: how often a spinning main thread wakes to act on a signal (``Node.spin``)
+SPIN_S = 0.1
 
 
 class RemoteError(RuntimeError):
@@ -142,6 +144,7 @@ class Node:
         self._owns_session = session is None
         self.session = session if session is not None else open_session(settings)
         self._stop = threading.Event()
+        self._signalled = False  # SIGINT / SIGTERM came (``install_signal_handlers``)
         self._threads: list[threading.Thread] = []
         self._subscribers: list[Any] = []
         self._entities: list[Any] = []  # publishers and queryables
@@ -397,13 +400,28 @@ class Node:
         self._stop.set()
 
     def install_signal_handlers(self) -> None:
-        """SIGINT and SIGTERM stop the node (main thread only)."""
+        """SIGINT and SIGTERM stop the node (main thread only). The handler only notes the
+        signal; ``spin`` stops the node. Setting the stop event in the handler could deadlock
+        on the event's own lock (the handler runs on the main thread, which may hold it inside
+        ``spin``'s wait), and a wait without a timeout may never run the handler at all when
+        the signal lands on another thread (Ctrl-C under ``avs up``: SIGINT, then SIGTERM
+        from the supervisor; 7 idle nodes in 20 never stopped)."""
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda _signum, _frame: self.stop())
+            signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, _signum: int, _frame: Any) -> None:
+        self._signalled = True
 
     def spin(self, timeout: float | None = None) -> None:
-        """Block until ``stop()`` (or a signal, after ``install_signal_handlers``)."""
-        self._stop.wait(timeout)
+        """Block until ``stop()`` (or a signal, after ``install_signal_handlers``), or
+        ``timeout``; waking every ``SPIN_S`` to act on a signal."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while not self._signalled:
+            left = SPIN_S if deadline is None else min(SPIN_S, deadline - time.monotonic())
+            if left <= 0 or self._stop.wait(left):
+                break
+        if self._signalled:
+            self.stop()
 
     def close(self) -> None:
         """Stop: inputs first (which also ends latest-only pumps), then the node's threads, then
