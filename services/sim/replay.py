@@ -10,6 +10,8 @@ import logging
 import time
 from pathlib import Path
 
+import zenoh
+
 from schemas import SimControl, SimStatus
 from services.common.node import Node, Output
 from services.common.playback import Recording, open_recording
@@ -45,8 +47,12 @@ class ReplayNode:
         )
 
     def _output(self, key: str) -> Output:
+        """A recorded key's publisher. Every message of a recording is put, none dropped on
+        congestion: a slow subscriber holds the replay back (at --speed 5 the 1 kHz IMU comes
+        at 5 kHz, and 29 of 300 samples were dropped on the key table's QoS in CI)."""
         if key not in self.outputs:
-            self.outputs[key] = self.node.publisher(key)
+            block = zenoh.CongestionControl.BLOCK
+            self.outputs[key] = self.node.publisher(key, congestion_control=block)
         return self.outputs[key]
 
     def play(self) -> None:

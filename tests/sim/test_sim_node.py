@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import subprocess
 import threading
+import time
 from collections import defaultdict
 
 import numpy as np
@@ -317,8 +318,9 @@ def test_sensor_models_over_zenoh(client, router, procs):
 
 def test_lockstep_streams_wait_for_a_stalled_subscriber(procs):
     """In lockstep nothing is late, so nothing may be lost: a subscriber that stalls while the
-    sim steps (small socket buffers, so the backlog cannot hide in them) still receives every
-    IMU sample, in order. On the key table's drop-on-congestion QoS it got 1 in 10."""
+    sim steps (its own session, with small socket buffers, so the backlog cannot hide in them)
+    still receives every IMU sample, in order. On the key table's drop-on-congestion QoS it got
+    1 in 10."""
     import json
 
     from tests.conftest import free_port, session_config
@@ -327,9 +329,13 @@ def test_lockstep_streams_wait_for_a_stalled_subscriber(procs):
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router_config = session_config("router", listen=[endpoint])
     router_config.insert_json5("transport/link/tcp", small)
-    client_config = session_config("client", connect=[endpoint])
-    client_config.insert_json5("transport/link/tcp", small)
-    with zenoh.open(router_config), zenoh.open(client_config) as client:
+    stalled_config = session_config("client", connect=[endpoint])
+    stalled_config.insert_json5("transport/link/tcp", small)
+    with (
+        zenoh.open(router_config),
+        zenoh.open(session_config("client", connect=[endpoint])) as client,
+        zenoh.open(stalled_config) as stalled_session,
+    ):
         sim = start_sim(procs, endpoint, "--lockstep", "--scene", "tabletop_clutter",
                         instance="stall")  # fmt: skip
         wait_alive(client, "stall", sim)
@@ -337,11 +343,12 @@ def test_lockstep_streams_wait_for_a_stalled_subscriber(procs):
         release = threading.Event()
 
         def stalled(sample: zenoh.Sample) -> None:
-            if not seqs:  # the first sample holds this session's receiving for 3 s
-                release.wait(3.0)
+            if not seqs:  # the first sample holds this session's receiving for 2 s
+                release.wait(2.0)
             seqs.append(decode(sample.payload.to_bytes(), ImuSample).seq)
 
-        sub = client.declare_subscriber(KEYS.imu(), stalled)
+        sub = stalled_session.declare_subscriber(KEYS.imu(), stalled)
+        time.sleep(0.5)  # the subscription reaches the router
         status = control(client, op="step", n=5000)
         release.set()
         assert status.steps == 5000
