@@ -249,13 +249,15 @@ def _crossings(tm, inv_td, limit, cap):
 
 @njit(cache=True, nogil=True, inline="always")
 def ray_gain(
-    classes, codes, subcodes, radii, shape, origin, grid_hi, voxel, o, u, max_range, lo, hi
-):
+    classes, codes, subcodes, radii, shape, origin, grid_hi, voxel, o, u, max_range, lo, hi,
+    volumes=True,
+):  # fmt: skip
     """Unknown voxels of the roi (the box [lo, hi) in the world) on one ray from ``o`` along the
     unit ``u`` before its first occupied voxel, within ``max_range`` (map frame: ``origin`` at
     the grid's corner, ``grid_hi`` its far one). A ray that misses the roi costs nothing, one
     that leaves it stops. Returns (that count, ∫ t³ over the ray's stretches through them,
-    i.e. Σ of t³ at leaving minus t³ at entering: the volume measure's). 3D DDA (Amanatides &
+    i.e. Σ of t³ at leaving minus t³ at entering: the volume measure's; 0 without
+    ``volumes``, which the rays measure does not need). 3D DDA (Amanatides &
     Woo) that crosses the uniform cube ahead (a SkipMap radius, of the ray's octant) in one
     step: the voxels a DDA visits in it are 1 + the boundary crossings before it leaves; in a
     MIXED block, a uniform 4³ octant (``subcodes``) likewise."""
@@ -317,14 +319,16 @@ def ray_gain(
                 if code == COUNT:
                     count += 1 + _crossings(tmx, itx, limit, nxl)
                     count += _crossings(tmy, ity, limit, nyl) + _crossings(tmz, itz, limit, nzl)
-                    volume += _cube(t0 + limit) - _cube(t0 + t)
+                    if volumes:
+                        volume += _cube(t0 + limit) - _cube(t0 + t)
                 return count, volume
             kx = _crossings(tmx, itx, leave, nxl)
             ky = _crossings(tmy, ity, leave, nyl)
             kz = _crossings(tmz, itz, leave, nzl)
             if code == COUNT:
                 count += 1 + kx + ky + kz
-                volume += _cube(t0 + leave) - _cube(t0 + t)
+                if volumes:
+                    volume += _cube(t0 + leave) - _cube(t0 + t)
             ix += sx * kx
             iy += sy * ky
             iz += sz * kz
@@ -344,7 +348,7 @@ def ray_gain(
         tmx = tmx + tdx if cx else tmx
         tmy = tmy + tdy if cy else tmy
         tmz = tmz + tdz if cz else tmz
-        if s == COUNT:
+        if volumes and s == COUNT:
             volume += _cube(t0 + min(t, limit)) - _cube(t0 + enter)
         if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
             break
@@ -353,15 +357,16 @@ def ray_gain(
 
 @njit(cache=True, nogil=True, parallel=True)
 def _gains(
-    classes, codes, subcodes, radii, shape, origin, voxel, poses, dirs, weights, max_range, lo, hi
-):
+    classes, codes, subcodes, radii, shape, origin, voxel, poses, dirs, weights, max_range, lo, hi,
+    volumes,
+):  # fmt: skip
     """Per view ``poses[v]``: Σ over the rays ``dirs`` (camera frame, unit) of their counts,
-    and of their ∫ t³ times the ray's weight; the (view, chunk of rays) pairs in parallel, so
-    one view uses every core too."""
+    and (with ``volumes``) of their ∫ t³ times the ray's weight; the (view, chunk of rays)
+    pairs in parallel, so one view uses every core too."""
     per = 256
     chunks = (dirs.shape[0] + per - 1) // per
     counts = np.zeros(poses.shape[0] * chunks, np.int64)
-    volumes = np.zeros(poses.shape[0] * chunks)
+    sums = np.zeros(poses.shape[0] * chunks)
     grid_hi = origin + shape * voxel
     for job in prange(poses.shape[0] * chunks):
         v, c = job // chunks, job % chunks
@@ -376,15 +381,15 @@ def _gains(
             u[2] = R[2, 0] * d[0] + R[2, 1] * d[1] + R[2, 2] * d[2]
             n, m3 = ray_gain(
                 classes, codes, subcodes, radii, shape, origin, grid_hi, voxel, o, u, max_range,
-                lo, hi,
+                lo, hi, volumes,
             )  # fmt: skip
             total += n
             volume += weights[r] * m3
-        counts[job], volumes[job] = total, volume
+        counts[job], sums[job] = total, volume
     out, vol = np.zeros(poses.shape[0], np.int64), np.zeros(poses.shape[0])
     for v in range(poses.shape[0]):
         out[v] = counts[v * chunks : (v + 1) * chunks].sum()
-        vol[v] = volumes[v * chunks : (v + 1) * chunks].sum()
+        vol[v] = sums[v * chunks : (v + 1) * chunks].sum()
     return out, vol
 
 
@@ -443,7 +448,7 @@ def information_gain(
         counts, volume = _gains(
             skip.classes, skip.codes, skip.subcodes, skip.radii, skip.shape, skip.origin,
             skip.voxel, poses, rays, weights / (3 * skip.voxel**3), float(max_range), skip.lo,
-            skip.hi,
+            skip.hi, solid_angle is not None,
         )  # fmt: skip
     return counts if solid_angle is None else volume
 
