@@ -27,6 +27,9 @@ REGISTERED_CAMERA = "registered"
 MAX_ROI_CLOUD = 60_000
 #: ``SceneMemory.fuse``'s default correction: the last registration's
 LAST = object()
+#: the reason a frame was not registered: the last registration is more recent than
+#: ``MemoryConfig.registration_interval`` (the frame took the last correction)
+NOT_DUE = "not_due"
 
 
 @dataclass
@@ -51,6 +54,10 @@ class MemoryConfig:
     #: view registration (A.5) of each integrated frame against the cloud so far; None: the
     #: frames' poses are taken as they come
     registration: RegistrationConfig | None = None
+    #: ... at most every this many seconds of capture time (the frames' stamps): a frame in
+    #: between is placed by the last correction (odometry drifts over seconds, not from one
+    #: frame to the next at 15 fps) and not added to the registration map; 0: every frame
+    registration_interval: float = 0.0
 
 
 class SceneMemory:
@@ -61,6 +68,10 @@ class SceneMemory:
     #: refused ones
     last_registration: dict | None = None
     registrations_refused: int = 0
+    #: the capture stamp of the last frame registration was tried on (None: none yet), and the
+    #: frames since placed by the last correction instead (``registration_interval``)
+    registered_stamp: float | None = None
+    registrations_not_due: int = 0
     #: what frames are registered against (``registration``): built as frames are integrated,
     #: rebuilt from the registered cloud for a snapshot written before it existed
     registration_map: RegistrationMap | None = None
@@ -228,6 +239,14 @@ class SceneMemory:
         c = self.config.registration
         if c is None or len(self.cloud) == 0:
             return prior, len(self.cloud) == 0
+        if not self.registration_due(frame.stamp):
+            self.registrations_not_due += 1
+            self.last_registration = {
+                "accepted": False, "reason": NOT_DUE, "fitness": 0.0, "rmse": 0.0, "ms": 0.0,
+                "stamp": frame.stamp,
+            }  # fmt: skip
+            return prior, False
+        self.registered_stamp = frame.stamp
         result = register(cam, prior, self._registration_map(), c)
         self.last_registration = {
             "accepted": result.accepted, "reason": result.reason, "fitness": result.fitness,
@@ -239,6 +258,12 @@ class SceneMemory:
             return prior, False
         self.T_world_odom = result.T_world_camera @ np.linalg.inv(T_odom)
         return result.T_world_camera, True
+
+    def registration_due(self, stamp: float) -> bool:
+        """Whether a frame captured at ``stamp`` is registered: ``registration_interval`` has
+        passed since the last one was (or time went back: a reset sim)."""
+        last, interval = self.registered_stamp, self.config.registration_interval
+        return last is None or interval <= 0 or not 0 <= stamp - last < interval
 
     def _registration_map(self) -> RegistrationMap:
         if self.registration_map is None:

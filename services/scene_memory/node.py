@@ -81,6 +81,7 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
             keyframe_move=s.keyframe_move,
             keyframe_turn=s.keyframe_turn,
             registration=RegistrationConfig() if s.registration else None,
+            registration_interval=s.registration_interval,
         )
     )
 
@@ -281,8 +282,9 @@ class SceneMemoryNode:
             last = m.last_registration or {"accepted": True, "reason": "", "fitness": 1.0,
                                            "rmse": 0.0, "ms": 0.0}  # fmt: skip
             T = m.T_world_odom if m.T_world_odom is not None else np.eye(4)
-            refused = m.registrations_refused
+            refused, not_due = m.registrations_refused, m.registrations_not_due
         self.node.metrics.gauge("registrations_refused", refused)
+        self.node.metrics.gauge("registrations_not_due", not_due)
         rmse = last["rmse"] if math.isfinite(last["rmse"]) else 0.0
         return PoseCorrection(
             seq=frame.seq, stamp=frame.stamp, T_world_odom=T, camera=frame.camera,

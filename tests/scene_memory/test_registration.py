@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from schemas import CameraIntrinsics, Keys, PoseCorrection, decode, encode
-from services.scene_memory.memory import MemoryConfig, SceneMemory
+from services.scene_memory.memory import NOT_DUE, MemoryConfig, SceneMemory
 from services.scene_memory.occupancy import OccupancyConfig
 from services.scene_memory.registration import (
     RegistrationConfig,
@@ -135,9 +135,10 @@ def test_the_memory_registers_drifting_views(updates, registration):
 
 
 def test_the_service_publishes_its_pose_corrections(client, router, procs, tmp_path, updates):
-    """scene_memory --registration over Zenoh: drifting frames in, one PoseCorrection per
-    integrated frame out, the last one mapping the last frame's odometry pose to within 5 mm
-    and 0.3° of its true pose."""
+    """scene_memory --registration over Zenoh: drifting frames 0.2 s apart in, one
+    PoseCorrection per integrated frame out; registration at most every 0.5 s (the default):
+    a registered frame's maps its odometry pose to within 5 mm and 0.3° of its true pose, the
+    frames in between say ``not_due`` and carry the last correction."""
     keys = Keys()
     got: list[PoseCorrection] = []
     client.declare_subscriber(
@@ -151,17 +152,25 @@ def test_the_service_publishes_its_pose_corrections(client, router, procs, tmp_p
         env=avs_env(router),
     )  # fmt: skip
     frames = [m for kind, m in updates if kind == "frame"]
-    odometry = drifted(frames, 0.012, 0.6)
+    # captured 0.2 s apart: with the service's default interval (0.5 s) frames 1 and 4 are
+    # registered, 2, 3 and 5 take the last correction
+    odometry = [f.model_copy(update={"stamp": 0.2 * i})
+                for i, f in enumerate(drifted(frames, 0.012, 0.6))]  # fmt: skip
     pub = matched_publisher(client, keys.rgbd("head_rgbd"), timeout=60)
     for i, f in enumerate(odometry):
         pub.put(encode(f))
         wait_for(lambda i=i: len(got) == i + 1, 60, f"the correction of frame {i}")
     assert [c.frame_seq for c in got] == [f.seq for f in frames]
-    assert all(c.accepted for c in got) and got[-1].refused == 0
-    assert 0 < got[-1].registration_ms < 5000 and got[-1].fitness > 0.4
-    T = got[-1].T_world_odom @ np.asarray(odometry[-1].T_world_camera)
-    moved, turned = pose_difference(np.asarray(frames[-1].T_world_camera), T)
-    assert moved <= 0.005 and turned <= 0.3, (moved, turned)
+    assert [c.reason for c in got] == ["", "", NOT_DUE, NOT_DUE, "", NOT_DUE]
+    assert [c.accepted for c in got] == [True, True, False, False, True, False]
+    assert got[-1].refused == 0 and got[-1].registration_ms == 0
+    assert 0 < got[4].registration_ms < 5000 and got[4].fitness > 0.4
+    for i in (4, 5):  # the registered frame, and the next one placed by its correction
+        T_true = np.asarray(frames[i].T_world_camera)
+        moved, turned = pose_difference(T_true, got[i].T_world_odom @ odometry[i].T_world_camera)
+        D = np.linalg.inv(drift(4, 0.012, 0.6)) @ drift(i, 0.012, 0.6)  # the drift since 4
+        expected = pose_difference(T_true, D @ T_true)
+        assert abs(moved - expected[0]) <= 0.005 and abs(turned - expected[1]) <= 0.3, (i, moved)
 
 
 @pytest.mark.parametrize("registration", [True, False])
@@ -234,6 +243,43 @@ def test_the_registration_map_survives_a_snapshot(updates):
         moved, turned = pose_difference(T_true, T)
         assert moved <= 0.005 and turned <= 0.3, (moved, turned)
     assert pose_difference(*poses)[0] < 0.001
+
+
+def test_registration_runs_at_most_every_interval(updates):
+    """Frames 0.2 s apart, registration at most every 0.5 s: frames 1 and 4 are registered
+    (within 5 mm and 0.3°); 2, 3 and 5 are placed by the last correction, so off by the drift
+    since (one or two views' 1.2 cm and 0.6°), counted as not due, and not added to the
+    registration map. A stamp before the last registered one (a reset sim) registers again."""
+    frames = [m for kind, m in updates if kind == "frame"]
+    config = MemoryConfig(bounds_min=tuple(BOUNDS_MIN), bounds_max=tuple(BOUNDS_MAX),
+                          occupancy=OccupancyConfig(voxel=VOXEL),
+                          registration=RegistrationConfig(), registration_interval=0.5)  # fmt: skip
+    memory = SceneMemory(config)
+    odometry = [f.model_copy(update={"stamp": 0.2 * i})
+                for i, f in enumerate(drifted(frames, 0.012, 0.6))]  # fmt: skip
+    reasons, errors, levels = [], [], []
+    for true, odo in zip(frames, odometry, strict=True):
+        before = [len(v) for v in memory.registration_map.levels] if memory.cloud.size else None
+        memory.integrate(odo)
+        reasons.append((memory.last_registration or {}).get("reason"))
+        levels.append(before == [len(v) for v in memory._registration_map().levels])
+        correction = memory.T_world_odom if memory.T_world_odom is not None else np.eye(4)
+        errors.append(pose_difference(np.asarray(true.T_world_camera),
+                                      correction @ np.asarray(odo.T_world_camera)))  # fmt: skip
+    assert reasons == [None, "", NOT_DUE, NOT_DUE, "", NOT_DUE]
+    assert memory.registrations_not_due == 3 and memory.registrations_refused == 0
+    assert levels == [False, False, True, True, False, True]  # carried frames add nothing
+    for i, j in enumerate([0, 1, 1, 1, 4, 4]):  # each frame's last registered one
+        # off by the drift since frame j: the correction is j's, D_j⁻¹
+        T_true = np.asarray(frames[i].T_world_camera)
+        D = np.linalg.inv(drift(j, 0.012, 0.6)) @ drift(i, 0.012, 0.6)
+        expected = pose_difference(T_true, D @ T_true)
+        assert abs(errors[i][0] - expected[0]) <= 0.005, (i, errors[i], expected)
+        assert abs(errors[i][1] - expected[1]) <= 0.3, (i, errors[i], expected)
+        assert (expected[0] > 0.01) == (i != j)
+    back = odometry[5].model_copy(update={"stamp": 0.1})
+    memory.integrate(back)
+    assert memory.last_registration["reason"] == "" and memory.last_registration["accepted"]
 
 
 def test_a_refused_frame_is_not_what_the_next_one_registers_to(updates):
