@@ -343,3 +343,31 @@ def test_a_service_stops_on_ctrl_c_under_avs_up(router, procs):
             p.kill()
             p.wait()
     assert hung == 0, f"{hung} of 10 nodes did not stop"
+
+
+def test_a_stopping_service_finishes_the_handler_in_flight(router, client, procs):
+    """SIGTERM while a handler runs: the handler finishes before the service closes what it
+    writes to. With the service closed first (as run_node did), its write met a closed file
+    and the message was dropped as a handler error: the scene memory lost the observation it
+    was fusing (``write to closed file``) at every stop of a busy stack."""
+    import signal
+    import subprocess
+
+    from schemas import ImuSample, encode
+    from tests.conftest import avs_env, matched_publisher
+
+    p = procs.python(
+        [str(Path(__file__).parent / "procs" / "busy_node.py")],
+        env=avs_env(router), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert p.stdout.readline().strip() == "up"
+    pub = matched_publisher(client, Keys().imu())
+    sample = ImuSample(seq=7, stamp=0.0, angular_velocity=(0, 0, 0),
+                       linear_acceleration=(0, 0, 9.81), orientation=(1, 0, 0, 0))  # fmt: skip
+    pub.put(encode(sample))
+    assert p.stdout.readline().strip() == "handling"
+    p.send_signal(signal.SIGTERM)
+    out, err = p.communicate(timeout=10)
+    assert p.returncode == 0, err
+    assert out.split() == ["handled"], (out, err)
+    assert "handler_error" not in err and "closed file" not in err, err

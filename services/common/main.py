@@ -14,7 +14,8 @@ from services.common.node import Node
 def run_node(settings: ServiceSettings, build: Callable[[Node], Any]) -> int:
     """Start a node for ``settings``, let ``build(node)`` declare the service's inputs and
     outputs, and block until SIGINT/SIGTERM (or the service stops the node). Whatever ``build``
-    returns is closed (if it has ``close()``) before the node."""
+    returns is closed (if it has ``close()``) once the node's inputs are stopped and their
+    handlers finished (``Node.stop_inputs``), and before its outputs and session go."""
     service = type(settings).SERVICE
     setup_logging(service, settings.instance, settings.log_level, settings.log_format)
     log = logging.getLogger(f"avs.{service}")
@@ -26,6 +27,7 @@ def run_node(settings: ServiceSettings, build: Callable[[Node], Any]) -> int:
         try:
             node.spin()
         finally:
+            node.stop_inputs()
             close = getattr(worker, "close", None)
             if callable(close):
                 close()

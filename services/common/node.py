@@ -423,13 +423,21 @@ class Node:
         if self._signalled:
             self.stop()
 
-    def close(self) -> None:
-        """Stop: inputs first (which also ends latest-only pumps), then the node's threads, then
-        outputs, queryables and the liveliness token, then the session."""
+    def stop_inputs(self) -> None:
+        """Stop taking inputs and let the work in flight finish: the node stops, its
+        subscribers go (which ends the latest-only and queued pumps) and its threads are
+        joined (5 s each at most). ``run_node`` calls it before the service closes what its
+        handlers use (the scene memory's journal: an observation fused while it closed was
+        lost as ``write to closed file``)."""
         self.stop()
         self._undeclare(self._subscribers)
         for thread in self._threads:
             thread.join(timeout=5.0)
+
+    def close(self) -> None:
+        """Stop: inputs first (which also ends latest-only pumps), then the node's threads, then
+        outputs, queryables and the liveliness token, then the session."""
+        self.stop_inputs()
         self._undeclare(self._entities)
         self._undeclare([self._token] if self._token is not None else [])
         if self._owns_session:
