@@ -533,6 +533,10 @@ def run(args, up: subprocess.Popen, endpoint: str, keys: Keys, started: float) -
         "in_map": len(per["map"]),
         "fused": len(per["fused"]),
         "keyframe_skipped": int(delta(mem0, mem1, "extra", "frames_skipped")),
+        # integrated frames placed by the last correction (registration at most every
+        # --registration-interval), and those registration refused
+        "registration_not_due": int(delta(mem0, mem1, "extra", "registrations_not_due")),
+        "registration_refused": int(delta(mem0, mem1, "extra", "registrations_refused")),
         "memory_superseded": int(delta(mem0, mem1, "dropped", "superseded")),
         "perception_superseded": int(delta(per0, per1, "dropped", "superseded")),
         "perception_stale": int(delta(per0, per1, "dropped", "stale")),
