@@ -316,44 +316,52 @@ def test_sensor_models_over_zenoh(client, router, procs):
     assert 0.003 < drift < 0.03, drift  # ~1.5 % of the ~0.9 m driven
 
 
-def test_lockstep_streams_wait_for_a_stalled_subscriber(procs):
-    """In lockstep nothing is late, so nothing may be lost: a subscriber that stalls while the
-    sim steps (its own session, with small socket buffers, so the backlog cannot hide in them)
-    still receives every IMU sample, in order. On the key table's drop-on-congestion QoS it got
-    1 in 10."""
+def test_lockstep_streams_wait_for_a_stalled_subscriber(procs, tmp_path):
+    """In lockstep nothing is late, so nothing may be lost: a subscriber process that is
+    stopped (SIGSTOP) for 2 s while the sim steps, behind 64 KB socket buffers so the backlog
+    cannot hide in them, still receives every IMU sample, in order. On the key table's
+    drop-on-congestion QoS it got 1 in 10. The router is a process of its own too, so nothing
+    this test process ran before shares its Zenoh threads."""
     import json
+    import signal
+    import socket
 
     from tests.conftest import free_port, session_config
 
-    small = json.dumps({"so_sndbuf": 65536, "so_rcvbuf": 65536})
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    router_config = session_config("router", listen=[endpoint])
-    router_config.insert_json5("transport/link/tcp", small)
-    stalled_config = session_config("client", connect=[endpoint])
-    stalled_config.insert_json5("transport/link/tcp", small)
-    with (
-        zenoh.open(router_config),
-        zenoh.open(session_config("client", connect=[endpoint])) as client,
-        zenoh.open(stalled_config) as stalled_session,
-    ):
+    config = tmp_path / "router.json5"
+    config.write_text(json.dumps({
+        "listen": {"endpoints": [endpoint]},
+        "transport": {"link": {"tcp": {"so_sndbuf": 65536, "so_rcvbuf": 65536}}},
+    }))  # fmt: skip
+    procs.python(["-m", "avs.router", "-c", str(config)], env=avs_env(endpoint))
+    port = int(endpoint.rsplit(":", 1)[1])
+
+    def listening() -> bool:
+        with socket.socket() as s:
+            return s.connect_ex(("127.0.0.1", port)) == 0
+
+    wait_for(listening, 30, "the router")
+    with zenoh.open(session_config("client", connect=[endpoint])) as client:
         sim = start_sim(procs, endpoint, "--lockstep", "--scene", "tabletop_clutter",
                         instance="stall")  # fmt: skip
         wait_alive(client, "stall", sim)
-        seqs: list[int] = []
-        release = threading.Event()
-
-        def stalled(sample: zenoh.Sample) -> None:
-            if not seqs:  # the first sample holds this session's receiving for 2 s
-                release.wait(2.0)
-            seqs.append(decode(sample.payload.to_bytes(), ImuSample).seq)
-
-        sub = stalled_session.declare_subscriber(KEYS.imu(), stalled)
-        time.sleep(0.5)  # the subscription reaches the router
+        stalled = procs.python(
+            ["tests/procs/count_imu.py", endpoint, "5000"],
+            env=avs_env(endpoint), stdout=subprocess.PIPE, text=True,
+        )  # fmt: skip
+        assert stalled.stdout.readline().strip() == "subscribed"
+        stalled.send_signal(signal.SIGSTOP)
+        resume = threading.Timer(2.0, stalled.send_signal, (signal.SIGCONT,))
+        resume.start()
+        t0 = time.monotonic()
         status = control(client, op="step", n=5000)
-        release.set()
+        resume.join()
         assert status.steps == 5000
-        wait_for(lambda: len(seqs) >= 5000, 30, "the IMU samples", state=lambda: len(seqs))
-        assert seqs == list(range(5000))
-        sub.undeclare()
+        received = json.loads(stalled.communicate(timeout=60)[0].splitlines()[-1])
+        assert received["errors"] == []
+        assert received["seqs"] == list(range(5000)), len(received["seqs"])
+        # the sim waited for the stopped subscriber rather than running ahead
+        assert time.monotonic() - t0 > 1.5
         sim.terminate()
         assert sim.wait(30) == 0
