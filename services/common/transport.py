@@ -18,6 +18,9 @@ _PRIORITY = {
     "data_low": zenoh.Priority.DATA_LOW,
 }
 _CONGESTION = {"drop": zenoh.CongestionControl.DROP, "block": zenoh.CongestionControl.BLOCK}
+#: publisher options over the key table's: every message is put, none dropped on congestion (a
+#: slow subscriber holds the publisher back): the sim's state streams in lockstep, a replay
+LOSSLESS = {"congestion_control": zenoh.CongestionControl.BLOCK}
 
 
 #: Transmission queues (in 64 KB batches, at most 16) per priority. With Zenoh's default of 2, a

@@ -20,7 +20,6 @@ from concurrent.futures import Future
 from typing import Any
 
 import numpy as np
-import zenoh
 
 from schemas import (
     ArmCommand,
@@ -39,6 +38,7 @@ from schemas import (
 )
 from services.common.node import Node
 from services.common.realtime import ordinary
+from services.common.transport import LOSSLESS
 from services.sim import capture, ground_truth
 from services.sim.config import SimSettings
 from services.sim.render import CameraRenderer
@@ -109,7 +109,7 @@ class SimNode:
         # on the wall clock a late 1 kHz sample is worth nothing and is dropped under congestion
         # (the key table's QoS); in lockstep the driver decides on what the streams say, so
         # they wait for a slow subscriber (and the sim with them) rather than lose a sample
-        qos = {"congestion_control": zenoh.CongestionControl.BLOCK} if settings.lockstep else {}
+        qos = LOSSLESS if settings.lockstep else {}
         self.out_imu = node.publisher(k.imu(), **qos)
         self.out_joints = node.publisher(k.joints(), **qos)
         self.out_base = node.publisher(k.base_state(), **qos)

@@ -10,12 +10,11 @@ import logging
 import time
 from pathlib import Path
 
-import zenoh
-
 from schemas import SimControl, SimStatus
 from services.common.node import Node, Output
 from services.common.playback import Recording, open_recording
 from services.common.recording import RecordingError
+from services.common.transport import LOSSLESS
 from services.sim.config import SimSettings
 
 log = logging.getLogger("avs.sim")
@@ -51,8 +50,7 @@ class ReplayNode:
         congestion: a slow subscriber holds the replay back (at --speed 5 the 1 kHz IMU comes
         at 5 kHz, and 29 of 300 samples were dropped on the key table's QoS in CI)."""
         if key not in self.outputs:
-            block = zenoh.CongestionControl.BLOCK
-            self.outputs[key] = self.node.publisher(key, congestion_control=block)
+            self.outputs[key] = self.node.publisher(key, **LOSSLESS)
         return self.outputs[key]
 
     def play(self) -> None:
