@@ -26,6 +26,7 @@ from services.common.dda import dda_axis
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 PASS, COUNT, STOP, MIXED = 0, 1, 2, 3  # what a voxel (or a whole block) is to a ray
 MAX_RADIUS = 64  # blocks (512 voxels) ahead
+TOUCH = 1e-7  # m: an occluder box that only touches a view's hull does not hide the roi
 #: (view, ray chunk) jobs handed out a few at a time rather than split in halves up front: on
 #: a machine whose cores other processes share (the live stack), a thread that loses its core
 #: no longer holds up the other at the end (same sums: each job has its own slot)
@@ -170,12 +171,75 @@ def _radii(codes, bx, by, bz):
     return radii
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def _occluder_boxes(classes, codes, shape, roi):
+    """Per 8³ block, the index box (x0, y0, z0, x1, y1, z1, half-open) of its occupied voxels
+    outside the roi (x1 = 0: none). Only MIXED blocks hold occupied voxels."""
+    nx, ny, nz = shape[0], shape[1], shape[2]
+    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
+    boxes = np.zeros((codes.shape[0], 6), np.int64)
+    for b in prange(codes.shape[0]):
+        if codes[b] != MIXED:
+            continue
+        i, j, k = b // (by * bz), (b // bz) % by, b % bz
+        x0, y0, z0, x1, y1, z1 = nx, ny, nz, 0, 0, 0
+        for t in range(512):
+            if classes[(b << 9) | t] != STOP:
+                continue
+            x, y, z = 8 * i + (t >> 6), 8 * j + ((t >> 3) & 7), 8 * k + (t & 7)
+            if roi[0] <= x < roi[3] and roi[1] <= y < roi[4] and roi[2] <= z < roi[5]:
+                continue
+            x0, y0, z0 = min(x0, x), min(y0, y), min(z0, z)
+            x1, y1, z1 = max(x1, x + 1), max(y1, y + 1), max(z1, z + 1)
+        if x1 > 0:
+            boxes[b, 0], boxes[b, 1], boxes[b, 2] = x0, y0, z0
+            boxes[b, 3], boxes[b, 4], boxes[b, 5] = x1, y1, z1
+    return boxes
+
+
+@njit(cache=True, nogil=True)
+def _meets_hull(c, lo, hi, a_lo, a_hi):
+    """Whether the box [a_lo, a_hi] meets the convex hull of the point c and the box [lo, hi]:
+    the hull is the union over s ∈ [0, 1] of the boxes c + s·([lo, hi] − c), so per axis two
+    linear conditions on s (that box's interval reaches a_lo and a_hi), all of them on one s
+    in [0, 1]. Closed boxes: a touch counts."""
+    s0, s1 = 0.0, 1.0
+    for a in range(3):
+        # c + s·(lo − c) ≤ a_hi  and  c + s·(hi − c) ≥ a_lo
+        for slope, rhs in ((lo[a] - c[a], a_hi[a] - c[a]), (c[a] - hi[a], c[a] - a_lo[a])):
+            if slope > 0:
+                s1 = min(s1, rhs / slope)
+            elif slope < 0:
+                s0 = max(s0, rhs / slope)
+            elif rhs < 0:
+                return False
+    return s0 <= s1
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _clear_views(poses, lo, hi, occluders):
+    """Per view: whether no occluder box (world, (n, 6)) meets the hull of its camera and the
+    roi [lo, hi]. Every ray's stretch before it enters the roi lies in that hull, so a clear
+    view's rays may start at the roi: what they would cross before it is free or unknown
+    outside the roi, which neither stops nor counts."""
+    clear = np.ones(poses.shape[0], np.bool_)
+    for v in prange(poses.shape[0]):
+        c = poses[v, :3, 3]
+        for b in range(occluders.shape[0]):
+            if _meets_hull(c, lo, hi, occluders[b, :3], occluders[b, 3:]):
+                clear[v] = False
+                break
+    return clear
+
+
 @dataclass(frozen=True)
 class SkipMap:
     """What the ray caster needs of one map and roi: voxel classes in 8³ blocks, the blocks'
     codes, their 4³ octants' codes (``subcodes``) and the radii of the uniform cubes ahead of
     them (octant × block); ``roi``: voxel index box x0, y0, z0, x1, y1, z1 and ``lo``, ``hi``
-    the same box in the world."""
+    the same box in the world; ``occluders``: per block holding occupied voxels outside the
+    roi, their bounding box in the world (lo, hi: (n, 6)), which a ray may meet before it
+    enters the roi."""
 
     classes: np.ndarray
     codes: np.ndarray
@@ -187,6 +251,7 @@ class SkipMap:
     roi: np.ndarray
     lo: np.ndarray
     hi: np.ndarray
+    occluders: np.ndarray
 
     @classmethod
     def build(
@@ -213,7 +278,16 @@ class SkipMap:
         subcodes = _sub_codes(classes, codes, shape)
         radii = _radii(codes, *((shape + 7) >> 3))
         lo, hi = origin + i0 * voxel, origin + i1 * voxel
-        return cls(classes, codes, subcodes, radii, shape, origin, float(voxel), roi, lo, hi)
+        boxes = _occluder_boxes(classes, codes, shape, roi)
+        boxes = boxes[boxes[:, 3] > 0]
+        # shrunk by TOUCH: a box that only touches the hull (the table top under the roi's
+        # floor, seen from above) is met by no ray before the roi, only by rounding
+        occluders = np.concatenate(
+            [origin + boxes[:, :3] * voxel + TOUCH, origin + boxes[:, 3:] * voxel - TOUCH], 1
+        )
+        return cls(
+            classes, codes, subcodes, radii, shape, origin, float(voxel), roi, lo, hi, occluders
+        )
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -250,14 +324,16 @@ def _crossings(tm, inv_td, limit, cap):
 @njit(cache=True, nogil=True, inline="always")
 def ray_gain(
     classes, codes, subcodes, radii, shape, origin, grid_hi, voxel, o, u, max_range, lo, hi,
-    volumes=True,
+    volumes=True, from_roi=False,
 ):  # fmt: skip
     """Unknown voxels of the roi (the box [lo, hi) in the world) on one ray from ``o`` along the
     unit ``u`` before its first occupied voxel, within ``max_range`` (map frame: ``origin`` at
     the grid's corner, ``grid_hi`` its far one). A ray that misses the roi costs nothing, one
     that leaves it stops. Returns (that count, ∫ t³ over the ray's stretches through them,
     i.e. Σ of t³ at leaving minus t³ at entering: the volume measure's; 0 without
-    ``volumes``, which the rays measure does not need). 3D DDA (Amanatides &
+    ``volumes``, which the rays measure does not need). ``from_roi``: the ray starts where it
+    enters the roi, for a view whose rays meet nothing before it (``_clear_views``). 3D DDA
+    (Amanatides &
     Woo) that crosses the uniform cube ahead (a SkipMap radius, of the ray's octant) in one
     step: the voxels a DDA visits in it are 1 + the boundary crossings before it leaves; in a
     MIXED block, a uniform 4³ octant (``subcodes``) likewise."""
@@ -267,7 +343,7 @@ def ray_gain(
     if r0 >= r1:
         return 0, 0.0
     # clip the segment [0, min(max_range, leaving the roi)] to the grid's box
-    t0, t1 = _clip(o, u, origin, grid_hi, 0.0, r1)
+    t0, t1 = _clip(o, u, origin, grid_hi, r0 if from_roi else 0.0, r1)
     if t0 >= t1:
         return 0, 0.0
     px = o[0] - origin[0] + u[0] * (t0 + 1e-9)
@@ -358,11 +434,13 @@ def ray_gain(
 @njit(cache=True, nogil=True, parallel=True)
 def _gains(
     classes, codes, subcodes, radii, shape, origin, voxel, poses, dirs, weights, max_range, lo, hi,
-    volumes,
+    volumes, occluders,
 ):  # fmt: skip
     """Per view ``poses[v]``: Σ over the rays ``dirs`` (camera frame, unit) of their counts,
     and (with ``volumes``) of their ∫ t³ times the ray's weight; the (view, chunk of rays)
-    pairs in parallel, so one view uses every core too."""
+    pairs in parallel, so one view uses every core too. The rays of a view that no
+    ``occluders`` box can hide the roi from start at the roi (``_clear_views``)."""
+    clear = _clear_views(poses, lo, hi, occluders)
     per = 256
     chunks = (dirs.shape[0] + per - 1) // per
     counts = np.zeros(poses.shape[0] * chunks, np.int64)
@@ -381,7 +459,7 @@ def _gains(
             u[2] = R[2, 0] * d[0] + R[2, 1] * d[1] + R[2, 2] * d[2]
             n, m3 = ray_gain(
                 classes, codes, subcodes, radii, shape, origin, grid_hi, voxel, o, u, max_range,
-                lo, hi, volumes,
+                lo, hi, volumes, clear[v],
             )  # fmt: skip
             total += n
             volume += weights[r] * m3
@@ -448,7 +526,7 @@ def information_gain(
         counts, volume = _gains(
             skip.classes, skip.codes, skip.subcodes, skip.radii, skip.shape, skip.origin,
             skip.voxel, poses, rays, weights / (3 * skip.voxel**3), float(max_range), skip.lo,
-            skip.hi, solid_angle is not None,
+            skip.hi, solid_angle is not None, skip.occluders,
         )  # fmt: skip
     return counts if solid_angle is None else volume
 

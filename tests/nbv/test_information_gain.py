@@ -3,6 +3,8 @@ the full one."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -11,6 +13,7 @@ from services.nbv.information_gain import (
     MAX_RADIUS,
     MIXED,
     SkipMap,
+    _clear_views,
     brute_force_gain,
     hierarchical,
     information_gain,
@@ -196,3 +199,38 @@ def test_the_volume_measure_counts_each_unknown_voxel_once():
     assert abs(volume[30] - volume[1]) < 0.02 * volume[1], volume
     per_ray = information_gain(states, origin, voxel, T[None], pixel_rays(*intrinsics), 2.0)[0]
     assert per_ray > 3 * seen, (per_ray, seen)
+
+
+def test_views_that_nothing_hides_the_roi_from_start_their_rays_at_the_roi():
+    """A table-top roi: a table right under its floor (touching it, wider than it), a post
+    outside it on one side, free space elsewhere. A view whose camera–roi hull holds no
+    occupied voxel of the outside casts from the roi on (``_clear_views``); one whose hull
+    holds the post or the table walks from the camera, and the post hides part of the roi.
+    Every view's count is the per-voxel traversal's."""
+    states = np.ones((70, 60, 45), np.uint8)  # free
+    origin = np.array([0.0, 0.0, 0.0])
+    states[20:50, 15:45, 20:30] = 0  # the roi's unknown inside: x .20-.50, y .15-.45, z .20-.30
+    states[30:33, 28:31, 20:24] = 2  # an object in the roi
+    states[10:60, 5:55, 19] = 2  # the table top, its top face the roi's floor
+    states[5:8, 28:32, 19:40] = 2  # a post at x .05-.08, in front of the roi from -x
+    box = (np.array([0.20, 0.15, 0.20]), np.array([0.50, 0.45, 0.30]))
+    skip = SkipMap.build(states, origin, VOXEL, box)
+    centre = np.array([0.3503, 0.3007, 0.2501])
+    sphere = np.array([
+        [-0.33, 0.01, 0.12],  # behind the post
+        [0.31, 0.02, 0.14],  # from +x: nothing between
+        [0.02, 0.32, 0.11],  # from +y
+        [0.03, -0.29, 0.13],  # from -y
+        [-0.2, 0.22, -0.07],  # from below the table top's level: the table in between
+    ])  # fmt: skip
+    views = np.array([vs.view_pose(centre, t) for t in sphere])
+    clear = _clear_views(views, skip.lo, skip.hi, skip.occluders)
+    assert clear.tolist() == [False, True, True, True, False]
+    rays = pixel_rays(64, 48, 58.0, 58.0, 31.5, 23.5, every=3)
+    ours = information_gain(states, origin, VOXEL, views, rays, 1.0, box)
+    for T, gain in zip(views, ours, strict=True):
+        assert gain == sum(brute_force_gain(states, origin, VOXEL, T, d, 1.0, box) for d in rays)
+    # the post hides some of the roi: walking from the roi on, the first view counts more
+    unhidden = replace(skip, occluders=np.zeros((0, 6)))
+    more = information_gain(None, origin, VOXEL, views[:1], rays, 1.0, skip=unhidden)[0]
+    assert more > ours[0] + 100, (more, ours[0])
