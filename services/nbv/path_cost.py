@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy import ndimage
 
 from services.common.dda import dda_axis
@@ -55,6 +55,34 @@ def segment_free(free: np.ndarray, ax: float, ay: float, bx: float, by: float) -
     return True
 
 
+@njit(cache=True, nogil=True, parallel=True)
+def _columns(states, k0, k1, kh):
+    """Per floor cell: whether its column holds an occupied voxel in the layers [k0, k1), and
+    whether its layers [k0, kh) are all unknown (0): one pass that leaves a column at its
+    first occupied voxel, where numpy's ``any`` and ``all`` made a temporary of the map's
+    size each (20 ms a planning step on a 1 cm map)."""
+    nx, ny, nz = states.shape
+    obstacle = np.zeros((nx, ny), np.bool_)
+    unseen = np.zeros((nx, ny), np.bool_)
+    for i in prange(nx):
+        for j in range(ny):
+            known = False
+            for k in range(k0, min(k1, nz)):
+                s = states[i, j, k]
+                if s == OCCUPIED:
+                    obstacle[i, j] = True
+                    known = known or k < kh
+                    break
+                known = known or (s != 0 and k < kh)
+            if not known:  # the layers [k0, kh) beyond k1 (kh ≤ k1 in use, but not assumed)
+                for k in range(max(k0, min(k1, nz)), min(kh, nz)):
+                    if states[i, j, k] != 0:
+                        known = True
+                        break
+            unseen[i, j] = not known and kh > k0
+    return obstacle, unseen
+
+
 @dataclass
 class FloorMap:
     """Clearance (m) from every floor cell to the nearest obstacle voxel between ``z_range``."""
@@ -81,10 +109,9 @@ class FloorMap:
         at (furniture may stand there); outside it, unknown floor is taken as free."""
         k0 = max(0, int((z_range[0] - origin[2]) / voxel))
         k1 = max(k0, math.ceil((z_range[1] - origin[2]) / voxel))
-        obstacle = np.any(states[:, :, k0:k1] == OCCUPIED, axis=2)
+        kh = max(k0 + 1, math.ceil((unseen_height - origin[2]) / voxel))
+        obstacle, unseen = _columns(np.ascontiguousarray(states), k0, k1, kh)
         if unseen_inside is not None:
-            kh = max(k0 + 1, math.ceil((unseen_height - origin[2]) / voxel))
-            unseen = np.all(states[:, :, k0:kh] == 0, axis=2)
             lo = np.floor((np.asarray(unseen_inside[0])[:2] - origin[:2]) / voxel).astype(int)
             hi = np.ceil((np.asarray(unseen_inside[1])[:2] - origin[:2]) / voxel).astype(int)
             lo, hi = np.clip(lo, 0, obstacle.shape), np.clip(hi, 0, obstacle.shape)

@@ -7,6 +7,7 @@ from itertools import pairwise
 
 import numpy as np
 import pytest
+from scipy import ndimage
 
 from services.nbv.path_cost import FloorMap, PathPlanner, path_cost
 
@@ -115,3 +116,25 @@ def test_maybe_reachable_is_false_only_where_the_cost_is_infinite():
     costs = np.array([planner.cost(start, g)[0] for g in goals])
     assert np.isinf(costs[~maybe]).all() and 20 < (~maybe).sum() < 180
     assert maybe[np.isfinite(costs)].all()
+
+
+def test_the_floor_map_blocks_occupied_columns_and_unseen_ones_inside_the_roi():
+    """Obstacles: a column with an occupied voxel between 5 cm and 2 m, and inside the roi's
+    xy box a column unknown up to 1.3 m; the floor (below 5 cm) and the space above 2 m do not
+    count, nor do unseen columns outside the box. Clearance = distance to the nearest one."""
+    rng = np.random.default_rng(11)
+    states = rng.choice([0, 1], p=[0.3, 0.7], size=(60, 50, 120)).astype(np.uint8)
+    states[:, :, :2] = 2  # the floor
+    states[:, :, 101:] = 2  # above 2 m
+    states[:20, :20, 2:66] = 0  # never seen up to 1.3 m (k 2..65): 10 × 10 inside the roi
+    posts = rng.integers(0, [60, 50], (6, 2))
+    states[posts[:, 0], posts[:, 1], 50] = 2
+    roi = (np.array([-1.0, -2.0, 0.5]), np.array([-0.8, -1.8, 1.0]))  # cells x, y < 10
+    floor = FloorMap.from_states(states, ORIGIN, VOXEL, unseen_inside=roi)
+    obstacle = np.any(states[:, :, 2:100] == 2, axis=2)
+    unseen = np.all(states[:, :, 2:65] == 0, axis=2)
+    obstacle[:10, :10] |= unseen[:10, :10]
+    assert obstacle[:10, :10].all() and not obstacle[10:20, 10:20].any()
+    assert obstacle.sum() == 100 + len({tuple(p) for p in posts if not (p < 10).all()})
+    expected = ndimage.distance_transform_edt(~obstacle) * VOXEL
+    assert np.allclose(floor.clearance, expected)
