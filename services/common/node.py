@@ -394,7 +394,9 @@ class Node:
 
     @property
     def stopping(self) -> bool:
-        return self._stop.is_set()
+        """Stopped, or a signal came (``spin`` stops the node on it, but a service may not be
+        spinning yet: a standby waiting for its turn in its constructor must not take over)."""
+        return self._signalled or self._stop.is_set()
 
     def stop(self) -> None:
         self._stop.set()

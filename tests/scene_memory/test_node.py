@@ -5,6 +5,7 @@ the middle of a fusion run and restarted, it comes back with what it knew."""
 from __future__ import annotations
 
 import signal
+import subprocess
 import threading
 import time
 
@@ -202,6 +203,33 @@ def test_a_standby_takes_over_within_2_s_when_the_active_is_killed(
     for i in range(6, len(updates)):
         send(i)
     assert summary(c.scene()) == summary(reference(updates).scene())
+
+
+def test_a_standby_stops_on_a_signal_and_does_not_take_over(client, router, procs, tmp_path):
+    """SIGTERM to an instance standing by ends it within 2 s, without taking over, while the
+    active one goes on. It used to stand by through its signal (a node acts on one once it
+    spins): at a Ctrl-C of ``avs up``, when the active one went, it took over and restored
+    the whole map only to stop."""
+    active = start(procs, router, tmp_path, 4, "m-a")
+    wait_for(lambda: KEYS.alive("scene_memory", "m-a") in liveliness_tokens(client, KEYS.alive()),
+             60, "the active instance")  # fmt: skip
+    standby = procs.python(
+        ["-m", "services.scene_memory", "--instance", "m-b", "--data-dir", str(tmp_path)],
+        env=avs_env(router), stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    token = KEYS.alive("scene_memory_standby", "m-b")
+    wait_for(lambda: token in liveliness_tokens(client, KEYS.alive()), 60, "the standby")
+    time.sleep(2.0)  # past its start-up discovery
+    standby.send_signal(signal.SIGTERM)
+    t0 = time.monotonic()
+    assert standby.wait(10) == 0
+    took = time.monotonic() - t0
+    assert took < 2.0, took
+    assert "taking over" not in standby.stderr.read()
+    assert KEYS.alive("scene_memory", "m-a") in liveliness_tokens(client, KEYS.alive())
+    assert Client(client).applied() == 0  # the active one still answers
+    active.send_signal(signal.SIGTERM)
+    assert active.wait(30) == 0
 
 
 def _answers(c: Client) -> bool:
