@@ -333,10 +333,9 @@ def ray_gain(
     i.e. Σ of t³ at leaving minus t³ at entering: the volume measure's; 0 without
     ``volumes``, which the rays measure does not need). ``from_roi``: the ray starts where it
     enters the roi, for a view whose rays meet nothing before it (``_clear_views``). 3D DDA
-    (Amanatides &
-    Woo) that crosses the uniform cube ahead (a SkipMap radius, of the ray's octant) in one
-    step: the voxels a DDA visits in it are 1 + the boundary crossings before it leaves; in a
-    MIXED block, a uniform 4³ octant (``subcodes``) likewise."""
+    (Amanatides & Woo) that crosses the uniform cube ahead (a SkipMap radius, of the ray's
+    octant) in one step: the voxels a DDA visits in it are 1 + the boundary crossings before
+    it leaves; in a MIXED block, a uniform 4³ octant (``subcodes``) likewise."""
     nx, ny, nz = shape[0], shape[1], shape[2]
     gby, gbz = (ny + 7) >> 3, (nz + 7) >> 3
     r0, r1 = _clip(o, u, lo, hi, 0.0, max_range)

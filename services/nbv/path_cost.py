@@ -58,7 +58,7 @@ def segment_free(free: np.ndarray, ax: float, ay: float, bx: float, by: float) -
 @njit(cache=True, nogil=True, parallel=True)
 def _columns(states, k0, k1, kh):
     """Per floor cell: whether its column holds an occupied voxel in the layers [k0, k1), and
-    whether its layers [k0, kh) are all unknown (0): one pass that leaves a column at its
+    whether its layers [k0, kh) (kh > k0) are all unknown (0): one pass that leaves a column at its
     first occupied voxel, where numpy's ``any`` and ``all`` made a temporary of the map's
     size each (20 ms a planning step on a 1 cm map)."""
     nx, ny, nz = states.shape
@@ -79,7 +79,7 @@ def _columns(states, k0, k1, kh):
                     if states[i, j, k] != 0:
                         known = True
                         break
-            unseen[i, j] = not known and kh > k0
+            unseen[i, j] = not known
     return obstacle, unseen
 
 
