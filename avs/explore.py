@@ -366,7 +366,7 @@ class Episode:
             vel = dict(zip(j.names, j.velocity, strict=True))
             head = all(abs(pos[n] - v) < 0.01 and abs(vel[n]) < 0.02 for n, v in targets.items())
             if arrived and head:
-                self._sim(session, op="step", n=50)  # let it come to rest
+                self._step(session, 50, base, joints)  # let it come to rest
                 return True
         log.warning("the platform did not reach view %d: taking it from where it stands", nbv.step)
         self.stop.put(
