@@ -140,18 +140,16 @@ class SceneMemory:
             registered()
         roi = self.config.roi
         if roi is not None:
-            unknown = self.occupancy.counts(*roi)[0]
             rays = self.occupancy.unknown_on_rays(
                 frame.depth, (K.fx, K.fy, K.cx, K.cy), T, roi, self.config.depth_min, max_range
             )
         k = self.config.map_stride
         n = self.occupancy.integrate_depth(
             frame.depth[::k, ::k], K.fx / k, K.fy / k, K.cx / k, K.cy / k, T,
-            self.config.depth_min, max_range,
+            self.config.depth_min, max_range, roi,
         )  # fmt: skip
-        if roi is not None:
-            volume = unknown - self.occupancy.counts(*roi)[0]
-            self.realised_gain = {"volume": float(volume), "rays": rays}
+        if roi is not None:  # the roi's voxels the frame made known, counted as they were
+            self.realised_gain = {"volume": float(self.occupancy.made_known), "rays": rays}
         t1 = time.perf_counter()
         pts = cam @ T[:3, :3].T + T[:3, 3]
         if self.config.registration is not None and placed:

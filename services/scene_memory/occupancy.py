@@ -426,22 +426,27 @@ def _pack_known(flat):
     return bits, values
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, parallel=True)
 def _unknown_on_rays(L, lo, voxel, origin, ends, box):
     """Σ over rays of the unknown voxels inside the index box ``box`` (x0, y0, z0, x1, y1, z1)
     that each ray from ``origin`` to its end point crosses, its end's voxel included (3D DDA;
-    the part of a ray outside the map is skipped)."""
+    only the part of a ray inside the box grown by a voxel is walked: a kitchen's rays cross
+    metres of map outside the roi, which count nothing; rays in parallel)."""
     nx, ny, nz = L.shape
+    # the walked part: the box grown by one voxel (within the map), so that where the walk
+    # starts never decides about a voxel of the box; each voxel is still tested against it
+    gx0, gy0, gz0 = max(box[0] - 1, 0), max(box[1] - 1, 0), max(box[2] - 1, 0)
+    gx1, gy1, gz1 = min(box[3] + 1, nx), min(box[4] + 1, ny), min(box[5] + 1, nz)
     total = 0
-    for r in range(ends.shape[0]):
+    for r in prange(ends.shape[0]):
         ux, uy, uz = ends[r, 0] - origin[0], ends[r, 1] - origin[1], ends[r, 2] - origin[2]
         dist = math.sqrt(ux * ux + uy * uy + uz * uz)
-        if dist < 1e-9:
+        if dist < 1e-9 or gx1 <= gx0 or gy1 <= gy0 or gz1 <= gz0:
             continue
         ux, uy, uz = ux / dist, uy / dist, uz / dist
-        ax, bx = _start(origin[0], ux, lo[0], nx, voxel)
-        ay, by = _start(origin[1], uy, lo[1], ny, voxel)
-        az, bz = _start(origin[2], uz, lo[2], nz, voxel)
+        ax, bx = _start(origin[0], ux, lo[0] + gx0 * voxel, gx1 - gx0, voxel)
+        ay, by = _start(origin[1], uy, lo[1] + gy0 * voxel, gy1 - gy0, voxel)
+        az, bz = _start(origin[2], uz, lo[2] + gz0 * voxel, gz1 - gz0, voxel)
         t0, t1 = max(0.0, ax, ay, az), min(dist, bx, by, bz)
         if t0 > t1:
             continue
@@ -516,13 +521,14 @@ def _snapshot(visited, cleared, dirty):
 
 
 @njit(cache=True, nogil=True)
-def _apply_block(L, visited, hit, cleared, block, by, bz, d_hit, d_miss, d_min, d_max):
+def _apply_block(L, visited, hit, cleared, block, by, bz, d_hit, d_miss, d_min, d_max, box, out):
     """Update the visited voxels of one 8×8×8 block and clear their bits. In thousandths:
-    the rounding of (old / 1000 + l) · 1000 is old + round(1000 · l), old being whole."""
+    the rounding of (old / 1000 + l) · 1000 is old + round(1000 · l), old being whole.
+    ``out``: (voxels updated, of them unknown before and inside the index box ``box``)."""
     x0 = (block // (by * bz)) << 3
     y0 = ((block // bz) % by) << 3
     z0 = (block % bz) << 3
-    n = 0
+    n = known = 0
     for j in range(64):
         w = (block << 6) | j
         seen = visited[w]
@@ -534,27 +540,34 @@ def _apply_block(L, visited, hit, cleared, block, by, bz, d_hit, d_miss, d_min, 
         cleared[w] = 0
         ix = x0 | (j >> 3)
         iy = y0 | (j & 7)
+        inside = box[0] <= ix < box[3] and box[1] <= iy < box[4]
         for b in range(8):
             if (seen >> b) & 1:
-                old = np.int32(L[ix, iy, z0 | b])
-                value = (0 if old == -32768 else old) + (d_hit if (hits >> b) & 1 else d_miss)
-                L[ix, iy, z0 | b] = np.int16(min(max(value, d_min), d_max))
+                iz = z0 | b
+                old = np.int32(L[ix, iy, iz])
+                if old == -32768:
+                    known += inside and box[2] <= iz < box[5]
+                    old = 0
+                value = old + (d_hit if (hits >> b) & 1 else d_miss)
+                L[ix, iy, iz] = np.int16(min(max(value, d_min), d_max))
                 n += 1
-    return n
+    out[0], out[1] = n, known
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _apply(L, visited, hit, cleared, blocks, d_hit, d_miss, d_min, d_max):
+def _apply(L, visited, hit, cleared, blocks, d_hit, d_miss, d_min, d_max, box):
     """Update every visited voxel of the dirty ``blocks`` once (hit: d_hit, else d_miss, in
     thousandths, clamped to [d_min, d_max]) and clear its bits; blocks in parallel, they
-    share no voxel. Returns the count."""
+    share no voxel. Returns (voxels updated, of them unknown before inside the index box
+    ``box``: the volume the scan made known there)."""
     by, bz = (L.shape[1] + 7) >> 3, (L.shape[2] + 7) >> 3
-    counts = np.zeros(blocks.shape[0], np.int64)
+    counts = np.zeros((blocks.shape[0], 2), np.int64)
     for k in prange(blocks.shape[0]):
-        counts[k] = _apply_block(
-            L, visited, hit, cleared, blocks[k], by, bz, d_hit, d_miss, d_min, d_max
-        )
-    return counts.sum()
+        _apply_block(
+            L, visited, hit, cleared, blocks[k], by, bz, d_hit, d_miss, d_min, d_max, box,
+            counts[k],
+        )  # fmt: skip
+    return counts[:, 0].sum(), counts[:, 1].sum()
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -629,6 +642,7 @@ class OccupancyMap:
         self.frames = 0
         self.version = 0
         self.rays = 0  # rays the last scan cast
+        self.made_known = 0  # voxels the last scan made known in its box (``integrate``)
 
     def _scratch(self) -> None:
         """The bit sets of one scan (visited, hit) and a dirty flag per 8×8×8 block, all zero
@@ -683,10 +697,15 @@ class OccupancyMap:
         return self.config.voxel
 
     def integrate(
-        self, points: np.ndarray, origin: np.ndarray, max_range: float | None = None
+        self,
+        points: np.ndarray,
+        origin: np.ndarray,
+        max_range: float | None = None,
+        box: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> int:
         """Insert one scan: rays from ``origin`` to each point (world, metres). Returns the
-        number of voxels updated."""
+        number of voxels updated; ``made_known`` is then how many of them were unknown before
+        inside the world box ``box`` (default: the map), counted as they are updated."""
         points = np.ascontiguousarray(np.asarray(points, np.float64).reshape(-1, 3))
         # a copy: numba compiles its kernels anew for a read-only array (a decoded pose's)
         origin = np.array(origin, np.float64)
@@ -730,7 +749,12 @@ class OccupancyMap:
                         _free(*walk, rays, max_range, chunks, patience)
         blocks = np.flatnonzero(self._dirty)
         self._dirty[blocks] = 0
-        count = _apply(self.L, self._visited, self._hit, self._cleared, blocks, *self._milli)
+        index = np.array(self._index_box(*box) if box is not None else (0, 0, 0, nx, ny, nz),
+                         np.int64)  # fmt: skip
+        count, known = _apply(
+            self.L, self._visited, self._hit, self._cleared, blocks, *self._milli, index
+        )
+        self.made_known = int(known)
         _saturate(self.L, self._saturated, blocks, self._milli[2])
         self.frames += 1
         self.version += 1
@@ -746,10 +770,12 @@ class OccupancyMap:
         T_world_camera: np.ndarray,
         depth_min: float = 0.0,
         max_range: float | None = None,
+        box: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> int:
-        """Insert a depth image (metres along the optical axis; 0 / NaN = no return, skipped)."""
+        """Insert a depth image (metres along the optical axis; 0 / NaN = no return, skipped);
+        ``box`` as in ``integrate``."""
         world = depth_points(depth, (fx, fy, cx, cy), T_world_camera, depth_min)
-        return self.integrate(world, T_world_camera[:3, 3], max_range)
+        return self.integrate(world, T_world_camera[:3, 3], max_range, box)
 
     def unknown_on_rays(
         self,

@@ -229,6 +229,25 @@ def test_the_gain_a_frame_realises_is_counted_both_ways():
     assert memory.realised_gain == {"volume": 0.0, "rays": 0.0}
 
 
+def test_a_scan_counts_the_voxels_it_makes_known_in_a_box_as_it_updates_them():
+    """``made_known``: the unknown voxels of a box that a scan made known, counted while the
+    scan updates them, is the box's unknown count before minus after, scan after scan, for
+    boxes that cut the rays' paths anywhere (and the whole map without one)."""
+    rng = np.random.default_rng(7)
+    m = OccupancyMap(LO, HI, OccupancyConfig(voxel=0.02))
+    boxes = [((0.5, -0.4, 0.3), (1.3, 0.5, 1.4)), ((1.1, -1.0, 0.0), (2.4, 0.0, 0.9)), None]
+    for scan in range(6):
+        origin = np.array([0.2 + 0.1 * scan, rng.uniform(-0.3, 0.3), rng.uniform(0.8, 1.2)])
+        points = rng.uniform(LO + 0.05, HI - 0.05, (3000, 3))
+        box = boxes[scan % 3]
+        before = m.counts(*box)[0] if box else m.counts()[0]
+        m.integrate(points, origin, box=box)
+        after = m.counts(*box)[0] if box else m.counts()[0]
+        assert m.made_known == before - after > 0
+    m.integrate(points, origin, box=boxes[0])  # the same scan again: nothing new
+    assert m.made_known == 0
+
+
 def test_rays_cross_saturated_free_blocks_in_one_step_and_change_nothing(monkeypatch):
     """Rays cross a block whose voxels are all free at the clamp (where a miss is a no-op) in
     one step. With every ray walked whole (no early stop), eight scans from a moving camera give
