@@ -148,7 +148,7 @@ class SceneMemory:
             frame.depth[::k, ::k], K.fx / k, K.fy / k, K.cx / k, K.cy / k, T,
             self.config.depth_min, max_range, roi,
         )  # fmt: skip
-        if roi is not None:  # the roi's voxels the frame made known, counted as they were
+        if roi is not None:  # the roi's voxels the frame made known, counted as it updated them
             self.realised_gain = {"volume": float(self.occupancy.made_known), "rays": rays}
         t1 = time.perf_counter()
         pts = cam @ T[:3, :3].T + T[:3, 3]
