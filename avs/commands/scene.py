@@ -31,6 +31,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _generate(args: argparse.Namespace) -> int:
     from services.sim.generate import GenerationError, generate
 
+    if args.out.suffix.lower() != ".xml":
+        # MuJoCo tells an MJCF file by its extension: any other name would be written, then
+        # refused by every command that loads it
+        print(f"avs scene generate: --out {args.out} must end in .xml (an MJCF file)",
+              file=sys.stderr)  # fmt: skip
+        return 2
     try:
         scene = generate(args.seed)
     except GenerationError as e:

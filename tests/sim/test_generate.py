@@ -320,6 +320,13 @@ def test_cli_generates_a_scene_that_validates(tmp_path):
     assert out.stdout.strip() == f"{path}: ok"
 
 
+def test_cli_refuses_a_scene_file_name_mujoco_would_not_load(tmp_path):
+    path = tmp_path / "scene"
+    out = _avs("generate", "--seed", "3", "--out", str(path))
+    assert out.returncode == 2 and not path.exists()
+    assert len(out.stderr.strip().splitlines()) == 1 and "must end in .xml" in out.stderr
+
+
 def test_cli_validate_exit_codes(tmp_path):
     bad = _scene(tmp_path, _box("a", 1.4) + _box("b", 1.45))
     out = _avs("validate", bad)
