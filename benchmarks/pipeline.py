@@ -6,7 +6,8 @@ sideways in front of the table and the counter (0.1 m/s, 6 s each way) while a g
 sweeps along them, so the gaze service pans the head (±30° at ``--pan-deg-s``, 60°/s by
 default: 4° a frame at 15 fps, more than the scene memory's keyframe threshold of 3°, so the
 keyframe policy skips frames only where the pan turns around and the rate it reaches is the
-pipeline's, not the script's).
+pipeline's, not the script's). Every service's kernels are put in the cache first (``avs
+warm-up``), so that no run measures the services compiling them.
 
 For every frame (by its ``seq``) this script, an outside client of ``avs up``'s router, takes
 the time from its capture to
@@ -426,6 +427,10 @@ def main() -> int:
     endpoint, keys = f"tcp/127.0.0.1:{args.port}", Keys("armar6")
     env = dict(os.environ, AVS_SIM_SCENE=SCENE, AVS_SIM_FPS=str(args.fps),
                MUJOCO_GL=os.environ.get("MUJOCO_GL", "egl"))  # fmt: skip
+    # every service's kernels in the cache first (seconds when they are; a minute or more after
+    # a kernel changed): otherwise the services compile at their start, on the cores the run
+    # then measures, and the first run after a change measures the compiler
+    subprocess.run([sys.executable, "-m", "avs.cli", "warm-up"], env=env, check=True)
     print(f"starting avs up (scene {SCENE}, {args.fps:g} fps, sensor models on) …", flush=True)
     started = time.monotonic()
     up = subprocess.Popen(
