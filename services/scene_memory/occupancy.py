@@ -88,9 +88,11 @@ PATIENCE_REST = 16
 #: a pass is cast in this many rounds (every SUBPASSES-th ray), each stopping on the voxels the
 #: rounds before it cleared, so that where a ray stops does not depend on thread timing
 SUBPASSES = 2
-#: a pass of fewer than SUBPASSES × SMALL_PASS rays is one round; fewer than SMALL_PASS rays
-#: are walked on the calling thread (no thread wake-ups)
+#: a pass of fewer than SUBPASSES × SMALL_PASS rays is one round
 SMALL_PASS = 2048
+#: a round of fewer rays is walked on the calling thread: the threads' wake-up would cost more
+#: than half the walk (a 1,500-ray round of a kitchen frame takes 3 ms on one thread)
+SERIAL_RAYS = 512
 #: the direction cells cover the directions within atan(PASS_SPAN) of the scan's mean one
 PASS_SPAN = 2.0
 #: what a snapshot leaves out
@@ -760,7 +762,7 @@ class OccupancyMap:
                     if patience:
                         _snapshot(self._visited, self._cleared, self._dirty)
                     rays = self._rays[a + i : b : step]
-                    if len(rays) < SMALL_PASS:
+                    if len(rays) < SERIAL_RAYS:
                         _free_serial(*walk, rays, max_range, patience)
                     else:
                         chunks = max(1, min(threads * 32, len(rays) // 64 + 1))
