@@ -33,7 +33,9 @@ def main(argv: list[str] | None = None, prog: str | None = None) -> int:
         )
         return 2
     try:
-        world = World(settings.scene, ROBOTS[settings.robot], timestep=settings.timestep)
+        world = World(
+            settings.scene, ROBOTS[settings.robot], timestep=settings.timestep, sleep=settings.sleep
+        )
     except SceneError as e:
         print(f"avs sim: {e}", file=sys.stderr)
         return 2

@@ -141,12 +141,21 @@ def _closure(edges: set[tuple[str, str]]) -> set[tuple[str, str]]:
         closed |= extra
 
 
+def _awake(data: mujoco.MjData) -> mujoco.MjData:
+    """A copy of ``data`` with every tree awake (``tree_asleep`` < 0)."""
+    d = copy.copy(data)
+    d.tree_asleep[:] = -1
+    return d
+
+
 def support_graph(
     model: mujoco.MjModel, data: mujoco.MjData, info: SceneInfo, duration: float = 0.5
 ) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
     """(support_edges, support_closure) of the state ``data``, each sorted. Works on copies:
-    the caller's model and data are left as they are."""
+    the caller's model and data are left as they are. Sleep is off in the copies (every tree
+    awake): a sleeping object neither falls when its support goes nor has contacts."""
     m = copy.copy(model)
+    m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
     owners = _owners(m)
     bodies = {n: m.body(n).id for n in info.objects}
     static = _static_support(m, data, info, owners)
@@ -157,7 +166,7 @@ def support_graph(
         saved = (m.geom_contype[geoms].copy(), m.geom_conaffinity[geoms].copy())
         m.geom_contype[geoms] = 0
         m.geom_conaffinity[geoms] = 0
-        d = copy.copy(data)
+        d = _awake(data)
         start = {n: (d.xpos[b].copy(), d.xquat[b].copy()) for n, b in bodies.items()}
         for _ in range(steps):
             mujoco.mj_step(m, d)
@@ -169,7 +178,9 @@ def support_graph(
             ):
                 relation.add((removed, n))
         m.geom_contype[geoms], m.geom_conaffinity[geoms] = saved
-    in_contact = _contacts(m, data)
+    awake = _awake(data)
+    mujoco.mj_forward(m, awake)
+    in_contact = _contacts(m, awake)
     direct = {(a, b) for a, b in relation if frozenset((a, b)) in in_contact or (a, b) in static}
     return sorted(direct), sorted(_closure(relation))
 

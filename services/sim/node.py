@@ -370,7 +370,9 @@ class SimNode:
                     False, f"this sim runs {self.robot.name}; start another with --robot {robot}"
                 )
             scene = request.scene or str(self.world.info.path)
-            world = World(scene, ROBOTS[robot], timestep=self.settings.timestep)
+            world = World(
+                scene, ROBOTS[robot], timestep=self.settings.timestep, sleep=self.settings.sleep
+            )
             with self.lock:
                 self.world = world
                 seed = request.seed if request.seed is not None else self.settings.seed

@@ -186,3 +186,25 @@ def test_imu_gyro_measures_the_head_and_reads_gravity_at_rest():
         assert np.linalg.norm(w.imu()[0]) > 0.1  # the head really turns
     assert max(errors) < 1e-3
     np.testing.assert_allclose(w.imu()[0], w.head_angular_velocity(), atol=1e-9)
+
+
+def test_objects_at_rest_sleep_where_they_would_stand_and_the_robot_stays_awake():
+    """MuJoCo's sleep skips the resting objects' dynamics and contacts; it must not move them,
+    nor stop the robot (actuated) from following its commands."""
+    asleep, awake = World("kitchen", ARMAR6), World("kitchen", ARMAR6, sleep=False)
+    m = asleep.model
+    robot = m.body_treeid[m.site_bodyid[asleep._imu_site]]
+    objects = [t for t in range(m.ntree) if t != robot]
+    assert objects and not asleep.data.tree_awake[objects].any()
+    assert asleep.data.tree_awake[robot] and awake.data.tree_awake[objects].all()
+    assert asleep.data.ncon == 0 < awake.data.ncon  # their contacts are not even detected
+    for w in (asleep, awake):
+        w.command_joints(["neck_yaw", "neck_pitch"], "velocity", np.array([0.5, -0.3]))
+        w.set_base_velocity(0.1, 0.05, 0.0, 1.0)
+        w.step(1000)
+    free = [j for j in range(m.njnt) if m.jnt_type[j] == 0]  # the objects' free joints
+    adr = np.concatenate([np.arange(m.jnt_qposadr[j], m.jnt_qposadr[j] + 3) for j in free])
+    assert len(free) == len(objects)
+    np.testing.assert_allclose(asleep.data.qpos[adr], awake.data.qpos[adr], atol=1e-3)
+    np.testing.assert_allclose(asleep.data.qpos, awake.data.qpos, atol=1e-3)  # the robot too
+    assert abs(asleep.joint_state()[1][0] - awake.joint_state()[1][0]) < 1e-6
