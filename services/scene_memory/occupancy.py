@@ -539,15 +539,19 @@ def _snapshot(visited, cleared, dirty):
 
 @njit(cache=True, nogil=True)
 def _apply_block(
-    L, visited, hit, cleared, known_bits, block, by, bz, d_hit, d_miss, d_min, d_max, box, out
+    L, visited, hit, cleared, known_bits, saturated, block, by, bz, d_hit, d_miss, d_min, d_max,
+    box, out,
 ):  # fmt: skip
     """Update the visited voxels of one 8×8×8 block, mark them known and clear their bits. In
     thousandths: the rounding of (old / 1000 + l) · 1000 is old + round(1000 · l), old being
-    whole. ``out``: (voxels updated, of them unknown before and inside the index box ``box``)."""
+    whole. ``out``: (voxels updated, of them unknown before and inside the index box ``box``).
+    ``saturated[block]`` anew (as ``_saturate``): no, once an updated voxel is above the clamp
+    ``d_min``; yes, when all 512 were updated to it; else as the block's voxels say."""
     x0 = (block // (by * bz)) << 3
     y0 = ((block // bz) % by) << 3
     z0 = (block % bz) << 3
     n = known = 0
+    at_min = True
     for j in range(64):
         w = (block << 6) | j
         seen = visited[w]
@@ -568,24 +572,36 @@ def _apply_block(
                 if old == -32768:
                     known += inside and box[2] <= iz < box[5]
                     old = 0
-                value = old + (d_hit if (hits >> b) & 1 else d_miss)
-                L[ix, iy, iz] = np.int16(min(max(value, d_min), d_max))
+                value = min(max(old + (d_hit if (hits >> b) & 1 else d_miss), d_min), d_max)
+                L[ix, iy, iz] = np.int16(value)
+                at_min &= value == d_min
                 n += 1
     out[0], out[1] = n, known
+    if not at_min:
+        saturated[block] = 0
+    elif n == 512:
+        saturated[block] = 1
+    else:
+        nx, ny, nz = L.shape
+        saturated[block] = _all_at(
+            L, x0, y0, z0, min(x0 + 8, nx), min(y0 + 8, ny), min(z0 + 8, nz), d_min
+        )
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _apply(L, visited, hit, cleared, known_bits, blocks, d_hit, d_miss, d_min, d_max, box):
+def _apply(
+    L, visited, hit, cleared, known_bits, saturated, blocks, d_hit, d_miss, d_min, d_max, box
+):  # fmt: skip
     """Update every visited voxel of the dirty ``blocks`` once (hit: d_hit, else d_miss, in
-    thousandths, clamped to [d_min, d_max]) and clear its bits; blocks in parallel, they
-    share no voxel. Returns (voxels updated, of them unknown before inside the index box
-    ``box``: the volume the scan made known there)."""
+    thousandths, clamped to [d_min, d_max]), clear its bits and tell whether its block is
+    ``saturated`` now; blocks in parallel, they share no voxel. Returns (voxels updated, of
+    them unknown before inside the index box ``box``: the volume the scan made known there)."""
     by, bz = (L.shape[1] + 7) >> 3, (L.shape[2] + 7) >> 3
     counts = np.zeros((blocks.shape[0], 2), np.int64)
     for k in prange(blocks.shape[0]):
         _apply_block(
-            L, visited, hit, cleared, known_bits, blocks[k], by, bz, d_hit, d_miss, d_min, d_max,
-            box, counts[k],
+            L, visited, hit, cleared, known_bits, saturated, blocks[k], by, bz, d_hit, d_miss,
+            d_min, d_max, box, counts[k],
         )  # fmt: skip
     return counts[:, 0].sum(), counts[:, 1].sum()
 
@@ -775,11 +791,10 @@ class OccupancyMap:
         index = np.array(self._index_box(*box) if box is not None else (0, 0, 0, nx, ny, nz),
                          np.int64)  # fmt: skip
         count, known = _apply(
-            self.L, self._visited, self._hit, self._cleared, self._known_bits, blocks,
-            *self._milli, index,
+            self.L, self._visited, self._hit, self._cleared, self._known_bits, self._saturated,
+            blocks, *self._milli, index,
         )  # fmt: skip
         self.made_known = int(known)
-        _saturate(self.L, self._saturated, blocks, self._milli[2])
         self.frames += 1
         self.version += 1
         return int(count)
