@@ -185,6 +185,9 @@ class PathPlanner:
         self.free = floor.clearance >= self.need
         self.labels, _ = ndimage.label(self.free)
         self._si = self._space = self._motions = None
+        #: ``_decided`` per (start, goal): ``maybe_reachable`` asks it of every candidate and
+        #: ``plan`` again of each (70 µs a pair, Python)
+        self._decisions: dict[tuple[float, ...], tuple[bool, np.ndarray | None]] = {}
 
     def valid(self, xy: np.ndarray) -> np.ndarray:
         return self.floor.lookup(xy) >= self.need
@@ -216,6 +219,12 @@ class PathPlanner:
         """What ``plan`` knows without a search: (True, the straight path) when the line is
         free, (True, None) when the goal cannot be reached (its cell not free, the start boxed
         in, or the two in different free components), (False, None) when only RRT can tell."""
+        key = (*start.tolist(), *goal.tolist())
+        if key not in self._decisions:
+            self._decisions[key] = self._decide(start, goal)
+        return self._decisions[key]
+
+    def _decide(self, start: np.ndarray, goal: np.ndarray) -> tuple[bool, np.ndarray | None]:
         if not self.valid(goal[None, :2])[0]:
             return True, None
         if self._segment_free(start, goal):
