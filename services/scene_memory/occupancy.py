@@ -107,7 +107,7 @@ SCRATCH = (
     "_keys",
     "_ray_scratch",
     "_seen",
-    "_deltas",
+    "_per_unit",
     "_grid_w",
     "_grid_off",
     "_grids",
@@ -154,12 +154,12 @@ def _slot(ix, iy, iz, by, bz):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span):
+def _level(dx, dy, dz, dist, basis, per_unit, grids, grid_off, grid_w, span):
     """The pass of the ray along (dx, dy, dz): the coarsest level whose direction cell (a
-    square of ``deltas[level]`` on the plane z = 1 of ``basis``) no ray claimed yet, or the
+    square of 1 / ``per_unit[level]`` on the plane z = 1 of ``basis``) no ray claimed yet, or the
     last pass. Each pass then holds about one ray per cell: the coarse passes fill the space
     near the sensor, which the rays of the later passes cross block by block."""
-    last = deltas.shape[0]
+    last = per_unit.shape[0]
     c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
     if c <= 0.25 * dist:
         return last
@@ -168,7 +168,7 @@ def _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span):
     if not (0.0 <= u < 2 * span and 0.0 <= v < 2 * span):
         return last
     for k in range(last):
-        cell = grid_off[k] + int(u / deltas[k]) * grid_w[k] + int(v / deltas[k])
+        cell = grid_off[k] + int(u * per_unit[k]) * grid_w[k] + int(v * per_unit[k])
         if grids[cell] == 0:
             grids[cell] = 1
             return k
@@ -204,7 +204,7 @@ def _key(cx, cy, cz):
 @njit(cache=True, nogil=True)
 def _hits(
     visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, keys, max_range, discretize,
-    seen, basis, deltas, grids, grid_off, grid_w, span, scratch, rays, starts,
+    seen, basis, per_unit, grids, grid_off, grid_w, span, scratch, rays, starts,
 ):  # fmt: skip
     """First pass, one thread: set the hit and visited bits of the voxel of every return
     within range inside the map, and list the rays to cast in ``rays``, pass by pass (ray
@@ -218,7 +218,7 @@ def _hits(
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
     inv = 1.0 / voxel
     mask = seen.shape[0] - 1
-    levels = deltas.shape[0] + 1
+    levels = per_unit.shape[0] + 1
     count = np.zeros(levels, np.int64)
     level = np.empty(points.shape[0], np.int8)
     n = 0
@@ -262,7 +262,7 @@ def _hits(
             if seen[slot] == key:
                 continue
             seen[slot] = key
-        k = _level(dx, dy, dz, dist, basis, deltas, grids, grid_off, grid_w, span)
+        k = _level(dx, dy, dz, dist, basis, per_unit, grids, grid_off, grid_w, span)
         level[n] = k
         count[k] += 1
         scratch[n, 0], scratch[n, 1], scratch[n, 2] = px, py, pz
@@ -697,8 +697,9 @@ class OccupancyMap:
         self._seen = np.full(SEEN_SLOTS, -1, np.int64)
         v = self.config.voxel
         ranges = [r for r in PASS_RANGES if 2 * PASS_SPAN * r / v <= 2048]  # cells ≤ 4 M a pass
-        self._deltas = np.array([v / r for r in ranges], np.float64)
-        widths = [math.ceil(2 * PASS_SPAN / d) + 1 for d in self._deltas]
+        # a pass's cells per unit on the plane (range / voxel: multiplied, not divided by)
+        self._per_unit = np.array([r / v for r in ranges], np.float64)
+        widths = [math.ceil(2 * PASS_SPAN * d) + 1 for d in self._per_unit]
         self._grid_w = np.array(widths, np.int64)
         self._grid_off = np.concatenate([[0], np.cumsum(np.square(widths))[:-1]]).astype(np.int64)
         self._grids = np.zeros(int(np.square(widths).sum()), np.uint8)
@@ -754,7 +755,7 @@ class OccupancyMap:
             self._ray_scratch = np.empty((len(points), 3), np.float64)
         nx, ny, nz = self.shape
         grid = (self._visited, self._hit, self._dirty, nx, ny, nz, self.lo, self.voxel, origin)
-        starts = np.zeros(len(self._deltas) + 2, np.int64)
+        starts = np.zeros(len(self._per_unit) + 2, np.int64)
         self._seen.fill(-1)
         self._grids.fill(0)
         if len(self._keys) < len(points):
@@ -763,7 +764,7 @@ class OccupancyMap:
         _cells(points, self.lo, self.voxel, keys)
         self.rays = _hits(
             *grid, points, keys, max_range, self.config.discretize, self._seen,
-            _basis(points, origin), self._deltas, self._grids, self._grid_off, self._grid_w,
+            _basis(points, origin), self._per_unit, self._grids, self._grid_off, self._grid_w,
             PASS_SPAN, self._ray_scratch, self._rays, starts,
         )  # fmt: skip
         threads = numba.get_num_threads()
