@@ -11,7 +11,8 @@ long rays, many past the 3 m range, to the far walls).
 Each case is a head pan, as the live stack sees it: ``--frames`` distinct frames (8) with the
 head turned from −``--pan`` to +``--pan`` degrees (±6°) around the start view, in that order.
 Each side integrates the start view once untimed (warm: the map's buffers touched, as the scene
-memory's are from frame to frame), then the pan, every frame timed once; medians over the pan.
+memory's are from frame to frame), then the pan, every frame timed once; medians over the pan,
+ours over ``--repeats`` (3) runs of it into fresh maps (OctoMap, seconds a frame, runs once).
 Distinct frames, not one frame again and again: repeating a frame would let the free space
 saturate (OctoMap skips updates of a voxel at its clamp, we cross whole blocks of them) far
 sooner than a moving camera does. Then the unknown / free / occupied voxels of the map's box
@@ -120,16 +121,19 @@ def every_ray(views, lo, hi, voxel) -> tuple[int, int, int]:
         occupancy.PATIENCE, occupancy.PATIENCE_REST = saved
 
 
-def ours(views, lo, hi, voxel) -> tuple[float, float, tuple[int, int, int]]:
+def ours(views, lo, hi, voxel, repeats: int = 1) -> tuple[float, float, tuple[int, int, int]]:
     """Median ms of ``integrate`` over the pan (``views[1:]``) into one map after the start
-    view (``views[0]``, untimed), the start view's own ms into the fresh map, and the counts."""
-    m = OccupancyMap(lo, hi, OccupancyConfig(voxel=voxel, max_range=MAX_RANGE))
-    times = []
-    for points, origin in views:
-        t0 = time.perf_counter()
-        m.integrate(points, origin)
-        times.append((time.perf_counter() - t0) * 1e3)
-    return float(np.median(times[1:])), times[0], m.counts(lo, hi)
+    view (``views[0]``, untimed), over ``repeats`` runs of the pan into fresh maps (the same
+    maps each time: the machine's noise, not ours, differs), the start view's own ms into the
+    first fresh map, and the counts."""
+    times, first = [], []
+    for _ in range(repeats):
+        m = OccupancyMap(lo, hi, OccupancyConfig(voxel=voxel, max_range=MAX_RANGE))
+        for i, (points, origin) in enumerate(views):
+            t0 = time.perf_counter()
+            m.integrate(points, origin)
+            (times if i else first).append((time.perf_counter() - t0) * 1e3)
+    return float(np.median(times)), first[0], m.counts(lo, hi)
 
 
 def bounded_tree(lo, hi, voxel):
@@ -167,12 +171,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=8, help="frames of the pan (≥ 3)")
     parser.add_argument("--pan", type=float, default=6.0, help="the pan's half angle, degrees")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="our runs of each pan (medians over all their frames; OctoMap's "
+                        "seconds a frame run once)")  # fmt: skip
     parser.add_argument("--stride", type=int, default=MemoryConfig().map_stride,
                         help="every n-th pixel each way (default: the scene memory's "
                         "map_stride, %(default)s)")  # fmt: skip
     args = parser.parse_args()
-    if args.frames < 3 or args.stride < 1:
-        parser.error("--frames must be ≥ 3 and --stride ≥ 1")
+    if args.frames < 3 or args.stride < 1 or args.repeats < 1:
+        parser.error("--frames must be ≥ 3, --stride and --repeats ≥ 1")
     from avs.bounds import map_bounds
 
     cases = []
@@ -209,7 +216,7 @@ def main() -> None:
             f"{voxel * 100:.0f} cm)",
             flush=True,
         )
-        ms, first, counts = ours(views, lo, hi, voxel)
+        ms, first, counts = ours(views, lo, hi, voxel, args.repeats)
         oms, binding, ocounts = octomap(views, lo, hi, voxel)
         full = every_ray(views, lo, hi, voxel)
         diff, full_diff, stop_diff = (
@@ -218,7 +225,8 @@ def main() -> None:
         )
         results[name, voxel, stride] = (ms, oms)
         print(
-            f"  {voxel * 100:.0f} cm: ours {ms:7.1f} ms a frame (the start view into the fresh "
+            f"  {voxel * 100:.0f} cm: ours {ms:7.1f} ms a frame ({len(views) - 1} × "
+            f"{args.repeats}; the start view into the fresh "
             f"map {first:.1f} ms)   OctoMap (BBX) {oms:8.1f} ms ×{oms / ms:.1f}"
             f" (of it the binding's Python discretize {binding:.1f} ms; without: "
             f"×{(oms - binding) / ms:.1f})\n"
