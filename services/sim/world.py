@@ -156,8 +156,13 @@ class World:
         self.disturbance = None
         self._v_cmd[:] = 0.0
         self._hold[:] = (x, y, yaw)
+        # the settle awake: an object that slowed below the sleep tolerance on its way down
+        # would sleep short of where it comes to rest (by up to 0.1 mm)
+        flags = m.opt.enableflags
+        m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
         for _ in range(int(SETTLE_S / self.timestep)):
             self.step()
+        m.opt.enableflags = flags
         d.time = 0.0
         self.steps = 0
 
