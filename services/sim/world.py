@@ -96,7 +96,8 @@ class World:
     ) -> None:
         """``sleep``: objects at rest sleep (MuJoCo's islands, ``mjENBL_SLEEP``): a step skips
         their dynamics and contacts until an awake body touches them (the robot, actuated,
-        never sleeps). On ``kitchen`` a step costs 12 µs instead of 44, at the IMU's 1 kHz."""
+        never sleeps; the reset's settle runs awake). On ``kitchen`` a step costs 12 µs instead
+        of 44, at the IMU's 1 kHz."""
         self.robot = robot
         self.model, self.info = load_world_model(scene, robot, timestep=timestep)
         if sleep:
