@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 from services.sim.scene import SceneInfo, body_id, owner_name
-from services.sim.world import World
+from services.sim.world import SLEEP, World
 
 MOVE_TOLERANCE = 0.01  # m
 TURN_TOLERANCE = math.radians(2.0)
@@ -155,7 +155,7 @@ def support_graph(
     the caller's model and data are left as they are. Sleep is off in the copies (every tree
     awake): a sleeping object neither falls when its support goes nor has contacts."""
     m = copy.copy(model)
-    m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+    m.opt.enableflags &= ~SLEEP
     owners = _owners(m)
     bodies = {n: m.body(n).id for n in info.objects}
     static = _static_support(m, data, info, owners)

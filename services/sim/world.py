@@ -33,6 +33,8 @@ from services.sim.scene import (
 AIM_JOINTS = {"armar6": ("neck_yaw", "neck_pitch"), "armar3": ("neck_yaw", "neck_upper_pitch")}
 #: seconds the scene settles at reset before time starts
 SETTLE_S = 0.3
+#: MuJoCo's sleep (islands) as an ``opt.enableflags`` bit
+SLEEP = int(mujoco.mjtEnableBit.mjENBL_SLEEP)
 #: a goal is reached within these tolerances (m, rad)
 GOAL_TOLERANCE = (0.005, math.radians(0.3))
 #: platform position gain when approaching a goal (1/s)
@@ -101,7 +103,7 @@ class World:
         self.robot = robot
         self.model, self.info = load_world_model(scene, robot, timestep=timestep)
         if sleep:
-            self.model.opt.enableflags |= mujoco.mjtEnableBit.mjENBL_SLEEP
+            self.model.opt.enableflags |= SLEEP
         self.data = mujoco.MjData(self.model)
         self.timestep = timestep
         self.head_velocity_timeout = head_velocity_timeout
@@ -160,7 +162,7 @@ class World:
         # the settle awake: an object that slowed below the sleep tolerance on its way down
         # would sleep short of where it comes to rest (by up to 0.1 mm)
         flags = m.opt.enableflags
-        m.opt.enableflags &= ~int(mujoco.mjtEnableBit.mjENBL_SLEEP)
+        m.opt.enableflags &= ~SLEEP
         for _ in range(int(SETTLE_S / self.timestep)):
             self.step()
         m.opt.enableflags = flags
