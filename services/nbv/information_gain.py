@@ -25,6 +25,8 @@ from services.common.dda import dda_axis
 
 UNKNOWN, FREE, OCCUPIED = 0, 1, 2
 PASS, COUNT, STOP, MIXED = 0, 1, 2, 3  # what a voxel (or a whole block) is to a ray
+#: eight voxels of a state in a word (``_block_classes``)
+FREE_8, OCCUPIED_8 = np.uint64(0x0101010101010101), np.uint64(0x0202020202020202)
 MAX_RADIUS = 64  # blocks (512 voxels) ahead
 TOUCH = 1e-7  # m: an occluder box that only touches a view's hull does not hide the roi
 #: (view, ray chunk) jobs handed out a few at a time rather than split in halves up front: on
@@ -48,59 +50,76 @@ def _clip(o, u, lo, hi, t0, t1):
     return t0, t1
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _class(s, in_roi):
+    """What a voxel of state ``s`` is to a ray."""
+    if s == OCCUPIED:
+        return STOP
+    return COUNT if s == UNKNOWN and in_roi else PASS
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _classes(states, roi):
-    """The voxels' classes in 8×8×8 blocks of 512 contiguous bytes: a ray that crosses a block
-    stays in a few cache lines (in C order every step along x or y is a new line). Voxels past
-    the grid's edge are PASS; nothing reads them."""
+def _block_classes(states, words, roi, classes, codes):
+    """Per 8×8×8 block (flat, C order over blocks): ``codes``, its class when all its voxels
+    share one, else MIXED (a block of occupied voxels too; voxels past the grid's edge do not
+    count), and ``classes``, its voxels' classes in 512 contiguous bytes (a ray that crosses
+    the block stays in a few cache lines; in C order every step along x or y is a new line),
+    written only where a ray may read them: a uniform PASS block is left as it is, zero, which
+    is PASS. ``classes`` comes zeroed. One pass over the states, block by block: a whole
+    block on one side of the roi's boundary is first told uniform PASS or not by OR and AND
+    over ``words`` (the states eight to a word, where a row of z is whole words; else empty),
+    64 of them a block (98 % of a map's blocks are free space, or unknown outside the roi),
+    and only the rest is classified voxel by voxel (the two passes this replaced, classes
+    then codes, took 18 of a 20 ms build on a 1 cm table-top map; this one about 6)."""
     nx, ny, nz = states.shape
-    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
-    out = np.zeros(((nx + 7) >> 3) * by * bz * 512, np.uint8)
-    for x in prange(nx):
-        in_x = roi[0] <= x < roi[3]
-        for y in range(ny):
-            in_xy = in_x and roi[1] <= y < roi[4]
-            row = (((x >> 3) * by + (y >> 3)) * bz) << 9
-            local = ((x & 7) << 6) | ((y & 7) << 3)
-            for z in range(nz):
-                s = states[x, y, z]
-                c = PASS
-                if s == OCCUPIED:
-                    c = STOP
-                elif s == UNKNOWN and in_xy and roi[2] <= z < roi[5]:
-                    c = COUNT
-                out[row + ((z >> 3) << 9) + local + (z & 7)] = c
-    return out
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _block_codes(classes, shape):
-    """Per 8³ block (flat, C order over blocks): its class when all its voxels share one, else
-    MIXED (voxels past the grid's edge do not count)."""
-    nx, ny, nz = shape[0], shape[1], shape[2]
     bx, by, bz = (nx + 7) >> 3, (ny + 7) >> 3, (nz + 7) >> 3
-    codes = np.empty(bx * by * bz, np.uint8)
-    for b in prange(bx * by * bz):
-        i, j, k = b // (by * bz), (b // bz) % by, b % bz
-        base = b << 9
-        first = classes[base]
-        code = first if first != STOP else MIXED
-        if 8 * i + 8 <= nx and 8 * j + 8 <= ny and 8 * k + 8 <= nz:
-            # a whole block: its 512 contiguous bytes against the first (a loop the compiler
-            # vectorises: no early exit)
-            differ = 0
-            for t in range(512):
-                differ |= classes[base + t] != first
-            if differ:
-                code = MIXED
-        else:
-            for x in range(min(8, nx - 8 * i)):
-                for y in range(min(8, ny - 8 * j)):
-                    for z in range(min(8, nz - 8 * k)):
-                        if classes[base | (x << 6) | (y << 3) | z] != first:
-                            code = MIXED
-        codes[b] = code
-    return codes
+    for i in prange(bx):
+        x0 = 8 * i
+        x1 = min(x0 + 8, nx)
+        for j in range(by):
+            y0 = 8 * j
+            y1 = min(y0 + 8, ny)
+            for k in range(bz):
+                z0 = 8 * k
+                z1 = min(z0 + 8, nz)
+                b = (i * by + j) * bz + k
+                whole = x1 - x0 == 8 and y1 - y0 == 8 and z1 - z0 == 8
+                apart = (x1 <= roi[0] or x0 >= roi[3] or y1 <= roi[1] or y0 >= roi[4]
+                         or z1 <= roi[2] or z0 >= roi[5])  # fmt: skip
+                within = (roi[0] <= x0 and x1 <= roi[3] and roi[1] <= y0 and y1 <= roi[4]
+                          and roi[2] <= z0 and z1 <= roi[5])  # fmt: skip
+                if whole and (apart or within) and words.shape[0]:
+                    # eight voxels along z in a word: their states' bits OR-ed and AND-ed
+                    any_bits, all_bits = np.uint64(0), ~np.uint64(0)
+                    for x in range(x0, x1):
+                        for y in range(y0, y1):
+                            w = words[((x * ny + y) * nz + z0) >> 3]
+                            any_bits |= w
+                            all_bits &= w
+                    if apart and not any_bits & OCCUPIED_8:  # free or unknown
+                        codes[b] = PASS
+                        continue
+                    if within and any_bits == FREE_8 and all_bits == FREE_8:
+                        codes[b] = PASS
+                        continue
+                # the voxels one by one
+                base = b << 9
+                first = _class(
+                    states[x0, y0, z0],
+                    roi[0] <= x0 < roi[3] and roi[1] <= y0 < roi[4] and roi[2] <= z0 < roi[5],
+                )
+                code = first if first != STOP else MIXED
+                for x in range(x0, x1):
+                    in_x = roi[0] <= x < roi[3]
+                    for y in range(y0, y1):
+                        in_xy = in_x and roi[1] <= y < roi[4]
+                        row = base | ((x & 7) << 6) | ((y & 7) << 3)
+                        for z in range(z0, z1):
+                            c = _class(states[x, y, z], in_xy and roi[2] <= z < roi[5])
+                            classes[row | (z & 7)] = c
+                            if c != first:
+                                code = MIXED
+                codes[b] = code
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -273,8 +292,14 @@ class SkipMap:
         i0 = np.floor((np.asarray(box[0]) - origin) / voxel + 1e-9).astype(np.int64)
         i1 = np.ceil((np.asarray(box[1]) - origin) / voxel - 1e-9).astype(np.int64)
         roi = np.concatenate([i0, i1])
-        classes = _classes(states, roi)
-        codes = _block_codes(classes, shape)
+        blocks = (shape + 7) >> 3
+        # zeroed pages from the system: only the ones the mixed blocks' classes are written to
+        # are ever touched
+        classes = np.zeros(int(np.prod(blocks)) * 512, np.uint8)
+        codes = np.empty(int(np.prod(blocks)), np.uint8)
+        # the states eight to a word, where a row of z is whole words (else none: voxel by voxel)
+        words = states.reshape(-1).view(np.uint64) if shape[2] % 8 == 0 else np.zeros(0, np.uint64)
+        _block_classes(states, words, roi, classes, codes)
         subcodes = _sub_codes(classes, codes, shape)
         radii = _radii(codes, *((shape + 7) >> 3))
         lo, hi = origin + i0 * voxel, origin + i1 * voxel

@@ -132,6 +132,49 @@ def test_uniform_blocks_are_crossed_in_one_step_without_changing_the_count():
             assert ours == ref and ours > 1000
 
 
+def _reference_classes(states, roi):
+    """Each voxel's class (PASS 0, COUNT 1, STOP 2) and each 8³ block's code, by numpy."""
+    inside = np.zeros(states.shape, bool)
+    inside[roi[0] : roi[3], roi[1] : roi[4], roi[2] : roi[5]] = True
+    classes = np.where(states == 2, 2, np.where((states == 0) & inside, 1, 0))
+    blocks = [(n + 7) // 8 for n in states.shape]
+    padded = np.full([8 * b for b in blocks], -1)  # past the grid: no class
+    padded[: states.shape[0], : states.shape[1], : states.shape[2]] = classes
+    cubes = padded.reshape(blocks[0], 8, blocks[1], 8, blocks[2], 8).transpose(0, 2, 4, 1, 3, 5)
+    cubes = cubes.reshape(-1, 512)
+    codes = np.full(len(cubes), MIXED)
+    for b, cube in enumerate(cubes):
+        values = np.unique(cube[cube >= 0])
+        if len(values) == 1 and values[0] != 2:  # one class, not STOP
+            codes[b] = values[0]
+    return cubes, codes
+
+
+@pytest.mark.parametrize("nz", [48, 45])  # rows of whole 8-byte words, and not
+def test_skip_map_classes_and_block_codes_are_those_of_each_voxel(nz):
+    """The one pass over the blocks (a block on one side of the roi's boundary told uniform
+    word by word) gives every voxel's class where a ray may read it and every block's code:
+    blocks of free space, of unknown space inside and outside the roi, of both mixed, one
+    occupied voxel in uniform space, and blocks the roi's boundary cuts."""
+    rng = np.random.default_rng(11)
+    states = np.ones((40, 36, nz), np.uint8)  # free
+    states[:16, :, :] = 0  # unknown
+    states[20:30, 8:20, 8:24] = rng.choice([0, 1, 2], p=[0.4, 0.5, 0.1], size=(10, 12, 16))
+    states[3, 30, 5] = states[25, 2, 40] = 2  # a lone occupied voxel in uniform space
+    states[8:16, 16:24, 16:24] = rng.choice([0, 1], size=(8, 8, 8))  # in the roi, no obstacle
+    roi = np.array([6, 4, 8, 33, 24, 40])  # cuts blocks, holds whole ones
+    box = (ORIGIN + roi[:3] * VOXEL, ORIGIN + roi[3:] * VOXEL)
+    skip = SkipMap.build(states, ORIGIN, VOXEL, box)
+    cubes, codes = _reference_classes(states, roi)
+    assert np.array_equal(skip.roi, roi)
+    assert np.array_equal(skip.codes, codes)
+    assert {0, 1, MIXED} <= set(codes.tolist())  # uniform free, uniform unknown in the roi
+    classes = skip.classes.reshape(-1, 512)
+    for b in np.flatnonzero(codes != 0):  # a uniform PASS block is never read
+        known = cubes[b] >= 0
+        assert np.array_equal(classes[b][known], cubes[b][known])
+
+
 def test_skip_map_cubes_are_uniform_and_as_large_as_they_can_be():
     """Per block and octant, the cube of r blocks ahead holds one class, and the cube of
     r + 1 does not (unless r is at its cap): on a map of 8³ blocks of random classes."""
