@@ -19,6 +19,8 @@ from services.common.dda import dda_axis
 from services.nbv.view_sphere import wrap
 
 OCCUPIED = 2
+#: eight voxels' bits in a word (``_any_set``): occupied, any state but unknown
+OCCUPIED_8, ANY_8 = np.uint64(0x0202020202020202), np.uint64(0x0303030303030303)
 
 
 def path_cost(path: np.ndarray, vel_lin: float, vel_rot: float) -> float:
@@ -55,31 +57,41 @@ def segment_free(free: np.ndarray, ax: float, ay: float, bx: float, by: float) -
     return True
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _any_set(flat, words, start, end, mask, mask_8):
+    """Whether a byte of ``flat[start:end]`` has a bit of ``mask``: byte by byte to a word
+    boundary, then eight at a time (``words``: ``flat`` as uint64, ``mask_8`` eight ``mask``)."""
+    k = start
+    while k < end and k & 7:
+        if flat[k] & mask:
+            return True
+        k += 1
+    while k + 8 <= end:
+        if words[k >> 3] & mask_8:
+            return True
+        k += 8
+    while k < end:
+        if flat[k] & mask:
+            return True
+        k += 1
+    return False
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _columns(states, k0, k1, kh):
-    """Per floor cell: whether its column holds an occupied voxel in the layers [k0, k1), and
-    whether its layers [k0, kh) (kh > k0) are all unknown (0): one pass that leaves a column at its
-    first occupied voxel, where numpy's ``any`` and ``all`` made a temporary of the map's
-    size each (20 ms a planning step on a 1 cm map)."""
-    nx, ny, nz = states.shape
+def _columns(flat, words, shape, k0, k1, kh):
+    """Per floor cell of the states (``flat``, C order, of ``shape``; ``words``: the same as
+    uint64): whether its column holds an occupied voxel in the layers [k0, k1), and whether
+    its layers [k0, kh) are all unknown (0), eight voxels at a time (numpy's ``any`` and
+    ``all`` made a temporary of the map's size each; a byte loop took 11 ms on a 1 cm map)."""
+    nx, ny, nz = shape[0], shape[1], shape[2]
     obstacle = np.zeros((nx, ny), np.bool_)
     unseen = np.zeros((nx, ny), np.bool_)
     for i in prange(nx):
         for j in range(ny):
-            known = False
-            for k in range(k0, min(k1, nz)):
-                s = states[i, j, k]
-                if s == OCCUPIED:
-                    obstacle[i, j] = True
-                    known = known or k < kh
-                    break
-                known = known or (s != 0 and k < kh)
-            if not known:  # the layers [k0, kh) beyond k1 (kh ≤ k1 in use, but not assumed)
-                for k in range(max(k0, min(k1, nz)), min(kh, nz)):
-                    if states[i, j, k] != 0:
-                        known = True
-                        break
-            unseen[i, j] = not known
+            base = (i * ny + j) * nz
+            lo = base + min(k0, nz)
+            obstacle[i, j] = _any_set(flat, words, lo, base + min(k1, nz), OCCUPIED, OCCUPIED_8)
+            unseen[i, j] = not _any_set(flat, words, lo, base + min(kh, nz), 3, ANY_8)
     return obstacle, unseen
 
 
@@ -110,7 +122,10 @@ class FloorMap:
         k0 = max(0, int((z_range[0] - origin[2]) / voxel))
         k1 = max(k0, math.ceil((z_range[1] - origin[2]) / voxel))
         kh = max(k0 + 1, math.ceil((unseen_height - origin[2]) / voxel))
-        obstacle, unseen = _columns(np.ascontiguousarray(states), k0, k1, kh)
+        flat = np.require(states, np.uint8, "C").reshape(-1)
+        words = flat[: len(flat) - len(flat) % 8].view(np.uint64)
+        shape = np.array(states.shape, np.int64)
+        obstacle, unseen = _columns(flat, words, shape, k0, k1, kh)
         if unseen_inside is not None:
             lo = np.floor((np.asarray(unseen_inside[0])[:2] - origin[:2]) / voxel).astype(int)
             hi = np.ceil((np.asarray(unseen_inside[1])[:2] - origin[:2]) / voxel).astype(int)

@@ -138,3 +138,26 @@ def test_the_floor_map_blocks_occupied_columns_and_unseen_ones_inside_the_roi():
     assert obstacle.sum() == 100 + len({tuple(p) for p in posts if not (p < 10).all()})
     expected = ndimage.distance_transform_edt(~obstacle) * VOXEL
     assert np.allclose(floor.clearance, expected)
+
+
+@pytest.mark.parametrize("nz", [37, 48])  # columns that start anywhere in a word, and on one
+def test_the_floor_columns_are_numpys_any_and_all_of_their_layers(nz):
+    """Obstacle: an occupied voxel in the layers [k0, k1); unseen: the layers [k0, kh) all
+    unknown; told eight voxels at a time, with the bytes before the first and after the last
+    whole word one by one: as numpy's ``any`` / ``all`` over the same layers, on a random
+    map with a lone occupied voxel at every layer of the range's ends and empty columns."""
+    rng = np.random.default_rng(5)
+    states = rng.choice([0, 1, 2], p=[0.7, 0.28, 0.02], size=(23, 19, nz)).astype(np.uint8)
+    states[:5] = 0  # unknown columns
+    k0, k1, kh = 7, 29, 31
+    for i, k in enumerate([k0 - 1, k0, k1 - 1, k1, kh - 1, kh]):
+        states[i, 10, :] = 0
+        states[i, 10, k] = 2  # a column unknown but for one occupied voxel, at layer k
+    origin = np.array([0.0, 0.0, 0.0])
+    floor = FloorMap.from_states(
+        states, origin, VOXEL, z_range=(k0 * VOXEL, k1 * VOXEL), unseen_inside=(origin, [1, 1]),
+        unseen_height=kh * VOXEL,
+    )  # fmt: skip
+    obstacle = (states[:, :, k0:k1] == 2).any(axis=2) | (states[:, :, k0:kh] == 0).all(axis=2)
+    assert obstacle.any() and not obstacle.all()
+    assert np.array_equal(floor.clearance == 0, obstacle)
