@@ -274,14 +274,6 @@ class Planner:
         )
         return PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
 
-    def reachable_candidates(
-        self, states, origin, voxel, current, bases: np.ndarray
-    ) -> tuple[PathPlanner, np.ndarray]:
-        """The path planner on this map, and the indices of the platform poses a path may
-        reach (``PathPlanner.maybe_reachable``)."""
-        planner = self.path_planner(states, origin, voxel, current)
-        return planner, np.flatnonzero(planner.maybe_reachable(current, bases))
-
     @staticmethod
     def path_costs(
         planner: PathPlanner, current, bases: np.ndarray
@@ -309,26 +301,33 @@ class Planner:
         times = {}
         t0 = time.perf_counter()
         occupancy = (states, origin, voxel)
-        reachable_by_ik = self.candidates(centres, scene, visited, occupancy)
-        cands = self.visible(reachable_by_ik, occupancy)
-        sampled = (len(reachable_by_ik.t), len(cands.t))
-        times["sampling_ms"] = (time.perf_counter() - t0) * 1e3
-        # a view whose platform pose is in collision, or in a free region the robot is not in,
+        # A view whose platform pose is in collision, or in a free region the robot is not in,
         # has c = ∞ whatever its gain (every strategy drops it): IG is predicted for the others
         # only (in the booth, 1-2 views in 4), theirs stays 0. The floor map that tells, and then
-        # the path costs (OMPL, Python), run on a second thread beside the skip map's build and
-        # the ray casting (whose kernels release the GIL): they fill the cores' gaps instead of
-        # following them; one thread, in order, as before: OMPL draws the same.
-        gain, cost = np.zeros(len(cands.t)), np.full(len(cands.t), math.inf)
-        paths: list[np.ndarray | None] = [None] * len(cands.t)
+        # the path costs (OMPL, Python), run on a second thread: the floor map beside the
+        # sampling (head IK, Python on this thread), the path costs beside the skip map's build
+        # and the ray casting (whose kernels release the GIL); they fill the cores' gaps instead
+        # of following them; one thread, in order, as before: OMPL draws the same.
         planner: PathPlanner | None = None
         try:
             with ThreadPoolExecutor(1, thread_name_prefix="nbv-paths") as pool:
-                floor_job = pool.submit(_timed, self.reachable_candidates, states, origin, voxel,
-                                        current, cands.base)  # fmt: skip
+                floor_job = pool.submit(_timed, self.path_planner, states, origin, voxel, current)
+                reachable_by_ik = self.candidates(centres, scene, visited, occupancy)
+                cands = self.visible(reachable_by_ik, occupancy)
+                sampled = (len(reachable_by_ik.t), len(cands.t))
+                times["sampling_ms"] = (time.perf_counter() - t0) * 1e3
+                gain, cost = np.zeros(len(cands.t)), np.full(len(cands.t), math.inf)
+                paths: list[np.ndarray | None] = [None] * len(cands.t)
+
+                def maybe_reachable() -> np.ndarray:
+                    """The candidates a path may reach (``PathPlanner.maybe_reachable``)."""
+                    floor = floor_job.result()[0]  # done: the thread runs its jobs in order
+                    return np.flatnonzero(floor.maybe_reachable(current, cands.base))
+
+                maybe_job = pool.submit(_timed, maybe_reachable)
                 t1 = time.perf_counter()
                 skip = ig.SkipMap.build(states, origin, voxel, c.roi)
-                (planner, maybe), floor_s = floor_job.result()
+                (planner, floor_s), (maybe, maybe_s) = floor_job.result(), maybe_job.result()
                 bases = cands.base[maybe]
                 costs_job = pool.submit(_timed, self.path_costs, planner, current, bases)
                 if len(maybe):
@@ -343,7 +342,7 @@ class Planner:
                 planner.close()
         for i, path in zip(maybe, found, strict=True):
             paths[i] = path
-        times["path_cost_ms"] = (floor_s + costs_s) * 1e3
+        times["path_cost_ms"] = (floor_s + maybe_s + costs_s) * 1e3
         u = utility(c.strategy, gain, cost, cands.saliency, c.lam, self.rng)
         reachable = np.isfinite(cost)
         best = int(np.argmax(u)) if reachable.any() else None
