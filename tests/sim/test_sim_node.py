@@ -302,6 +302,10 @@ def test_sensor_models_over_zenoh(client, router, procs):
 
     goal = matched_publisher(client, KEYS.cmd_base(), timeout=30)
     goal.put(encode(BaseGoal(goal_id="g", x=-0.8, y=0.0, yaw=0.0)))
+    # the goal is taken before the steps: a query may overtake a put, and the steps hold the
+    # sim until they are done (its drop of the bad message after the goal tells it was taken)
+    goal.put(b"not a command")
+    wait_for(lambda: _metric_drops(client, "sensors") >= 1, 30, "the sim to take the goal")
     control(client, op="step", n=6000)
     wait_for(lambda: base.count() >= 1600, 30, "the base states", state=base.count)
     believed: BasePose = base.messages()[-1]
