@@ -125,7 +125,7 @@ def _block_classes(states, words, roi, classes, codes):
 @njit(cache=True, nogil=True, parallel=True)
 def _sub_codes(classes, codes, shape):
     """Per 8³ block, the codes of its eight 4³ octants (index 4·[x ≥ 4] + 2·[y ≥ 4] + [z ≥ 4],
-    flat: block · 8 + octant), as ``_block_codes`` for blocks: inside a MIXED block, a ray
+    flat: block · 8 + octant), as ``_block_classes``'s codes for blocks: inside a MIXED block, a ray
     crosses a uniform octant in one step (in the roi's mixed blocks about half are, mostly
     free space in front of the surfaces). A uniform block's octants have its code; a MIXED
     block at the grid's edge has MIXED octants (the voxels past the edge are no class)."""
@@ -301,7 +301,7 @@ class SkipMap:
         words = states.reshape(-1).view(np.uint64) if shape[2] % 8 == 0 else np.zeros(0, np.uint64)
         _block_classes(states, words, roi, classes, codes)
         subcodes = _sub_codes(classes, codes, shape)
-        radii = _radii(codes, *((shape + 7) >> 3))
+        radii = _radii(codes, *blocks)
         lo, hi = origin + i0 * voxel, origin + i1 * voxel
         boxes = _occluder_boxes(classes, codes, shape, roi)
         boxes = boxes[boxes[:, 3] > 0]

@@ -16,11 +16,11 @@ from numba import njit, prange
 from scipy import ndimage
 
 from services.common.dda import dda_axis
+from services.nbv.information_gain import FREE, FREE_8, OCCUPIED, OCCUPIED_8
 from services.nbv.view_sphere import wrap
 
-OCCUPIED = 2
-#: eight voxels' bits in a word (``_any_set``): occupied, any state but unknown
-OCCUPIED_8, ANY_8 = np.uint64(0x0202020202020202), np.uint64(0x0303030303030303)
+#: eight voxels' states in a word (``_any_set``): any but unknown
+ANY_8 = FREE_8 | OCCUPIED_8
 
 
 def path_cost(path: np.ndarray, vel_lin: float, vel_rot: float) -> float:
@@ -78,12 +78,13 @@ def _any_set(flat, words, start, end, mask, mask_8):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _columns(flat, words, shape, k0, k1, kh):
-    """Per floor cell of the states (``flat``, C order, of ``shape``; ``words``: the same as
-    uint64): whether its column holds an occupied voxel in the layers [k0, k1), and whether
-    its layers [k0, kh) are all unknown (0), eight voxels at a time (numpy's ``any`` and
-    ``all`` made a temporary of the map's size each; a byte loop took 11 ms on a 1 cm map)."""
-    nx, ny, nz = shape[0], shape[1], shape[2]
+def _columns(states, words, k0, k1, kh):
+    """Per floor cell of the states (C order; ``words``: the same, flat, as uint64): whether
+    its column holds an occupied voxel in the layers [k0, k1), and whether its layers [k0, kh)
+    are all unknown (0), eight voxels at a time (numpy's ``any`` and ``all`` made a temporary
+    of the map's size each; a byte loop took 11 ms on a 1 cm map)."""
+    nx, ny, nz = states.shape
+    flat = states.reshape(-1)
     obstacle = np.zeros((nx, ny), np.bool_)
     unseen = np.zeros((nx, ny), np.bool_)
     for i in prange(nx):
@@ -91,7 +92,7 @@ def _columns(flat, words, shape, k0, k1, kh):
             base = (i * ny + j) * nz
             lo = base + min(k0, nz)
             obstacle[i, j] = _any_set(flat, words, lo, base + min(k1, nz), OCCUPIED, OCCUPIED_8)
-            unseen[i, j] = not _any_set(flat, words, lo, base + min(kh, nz), 3, ANY_8)
+            unseen[i, j] = not _any_set(flat, words, lo, base + min(kh, nz), FREE | OCCUPIED, ANY_8)
     return obstacle, unseen
 
 
@@ -122,10 +123,10 @@ class FloorMap:
         k0 = max(0, int((z_range[0] - origin[2]) / voxel))
         k1 = max(k0, math.ceil((z_range[1] - origin[2]) / voxel))
         kh = max(k0 + 1, math.ceil((unseen_height - origin[2]) / voxel))
-        flat = np.require(states, np.uint8, "C").reshape(-1)
-        words = flat[: len(flat) - len(flat) % 8].view(np.uint64)
-        shape = np.array(states.shape, np.int64)
-        obstacle, unseen = _columns(flat, words, shape, k0, k1, kh)
+        states = np.require(states, np.uint8, "C")
+        flat = states.reshape(-1)
+        obstacle, unseen = _columns(states, flat[: len(flat) - len(flat) % 8].view(np.uint64),
+                                    k0, k1, kh)  # fmt: skip
         if unseen_inside is not None:
             lo = np.floor((np.asarray(unseen_inside[0])[:2] - origin[:2]) / voxel).astype(int)
             hi = np.ceil((np.asarray(unseen_inside[1])[:2] - origin[:2]) / voxel).astype(int)
