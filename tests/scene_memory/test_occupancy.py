@@ -297,6 +297,43 @@ def test_rays_cross_saturated_free_blocks_in_one_step_and_change_nothing(monkeyp
     assert np.array_equal(restored._saturated, skipping._saturated)
 
 
+def test_the_map_is_the_same_whichever_threads_walk_the_rays(monkeypatch):
+    """Each walking thread marks its visits in a bit set of its own; the rounds' stops and the
+    updates read their union. Eight scans from a moving camera give, voxel by voxel, the map
+    one thread gives, with two threads and with more threads than the map has sets (capped)."""
+    numba = pytest.importorskip("numba")
+    from services.scene_memory import occupancy
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("one thread only")
+    rng = np.random.default_rng(11)
+    base = np.full((H, W), 1.79, np.float32)
+    for _ in range(6):
+        r, c = rng.integers(0, H - 40), rng.integers(0, W - 40)
+        base[r : r + rng.integers(20, 80), c : c + rng.integers(20, 100)] = rng.uniform(0.6, 1.5)
+    base[:30] = 3.6  # past max range
+    scans = [(base + rng.normal(0, 0.004, base.shape).astype(np.float32),
+              camera_facing_x(0.2 + 0.01 * i, 1.0 + 0.005 * i)) for i in range(8)]  # fmt: skip
+    maps = {}
+    before = numba.get_num_threads()
+    try:
+        for threads, cap in ((1, 8), (2, 8), (2, 1)):
+            numba.set_num_threads(threads)
+            monkeypatch.setattr(occupancy, "WALK_THREADS", cap)
+            m = maps[threads, cap] = OccupancyMap(LO, HI, OccupancyConfig(voxel=0.01))
+            for depth, T in scans:
+                integrate(m, depth, T)
+                assert m.rays > 2 * occupancy.SUBPASSES * occupancy.SMALL_PASS  # rounds, threads
+            assert not m._visited.any() and len(m._visited) == min(threads, cap)
+    finally:
+        numba.set_num_threads(before)
+    one = maps[1, 8]
+    assert one.counts()[1] > 100_000
+    for m in maps.values():
+        assert np.array_equal(m.L, one.L)
+        assert np.array_equal(m._saturated, one._saturated)
+
+
 @pytest.mark.parametrize("n", [0, 3, 8, 1001, 65_539])
 def test_a_snapshot_packs_the_known_voxels_as_numpy_would(n):
     """The snapshot's compiled packing (four voxels at a time where all are unknown) against
