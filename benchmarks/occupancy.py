@@ -8,6 +8,10 @@ tabletop_clutter's start view at 1 cm and 2 cm (the map: the roi grown by 1 m, f
 and kitchen's start view at 1 cm (the map the live stack gives the kitchen, avs/bounds.py:
 long rays, many past the 3 m range, to the far walls).
 
+The frames are rendered in a child process (MuJoCo, EGL) and only their arrays come back: the
+timing process holds no renderer (Mesa's threads, the GL context's memory), as the scene
+memory's process holds none.
+
 Each case is a head pan, as the live stack sees it: ``--frames`` distinct frames (8) with the
 head turned from −``--pan`` to +``--pan`` degrees (±6°) around the start view, in that order.
 Each side integrates the start view once untimed (warm: the map's buffers touched, as the scene
@@ -28,8 +32,10 @@ counts within 1-2 %.
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -167,6 +173,29 @@ def octomap(views, lo, hi, voxel) -> tuple[float, float, tuple[int, int, int]]:
     )
 
 
+def inputs(frames: int, degrees: float) -> list[tuple]:
+    """The cases' (name, voxel, frames, lo, hi), each stride taken later: the pans of both
+    scenes and their maps' bounds."""
+    from avs.bounds import map_bounds
+
+    world, views = pan("tabletop_clutter", frames, degrees)
+    # the workspace around the table (the roi grown by 1 m, floor to 2 m)
+    lo = np.floor((world.info.roi[0] - 1.0) / 0.02) * 0.02
+    hi = np.ceil((world.info.roi[1] + 1.0) / 0.02) * 0.02
+    lo[2], hi[2] = -0.04, 2.0
+    cases = [("table-top", 0.01, views, lo, hi), ("table-top", 0.02, views, lo, hi)]
+    world, views = pan("kitchen", frames, degrees)
+    # the live stack's kitchen map (avs/explore.py's scene_facts), on the 2 cm grid
+    info = world.info
+    pois = np.array([info.pois[k] for k in sorted(info.pois)]).reshape(-1, 3)
+    lo, hi = map_bounds(
+        info.roi, info.robot_start[:2], pois if len(pois) else look_target(world)[None, :],
+        footprint=world.robot.footprint_radius, workspace=info.workspace,
+    )  # fmt: skip
+    lo, hi = np.floor(lo / 0.02) * 0.02, np.ceil(hi / 0.02) * 0.02
+    return [*cases, ("kitchen", 0.01, views, lo, hi)]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--frames", type=int, default=8, help="frames of the pan (≥ 3)")
@@ -180,27 +209,14 @@ def main() -> None:
     args = parser.parse_args()
     if args.frames < 3 or args.stride < 1 or args.repeats < 1:
         parser.error("--frames must be ≥ 3, --stride and --repeats ≥ 1")
-    from avs.bounds import map_bounds
-
+    spawn = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(1, mp_context=spawn) as child:
+        rendered = child.submit(inputs, args.frames, args.pan).result()
     cases = []
-    world, views = pan("tabletop_clutter", args.frames, args.pan)
-    # the workspace around the table (the roi grown by 1 m, floor to 2 m)
-    lo = np.floor((world.info.roi[0] - 1.0) / 0.02) * 0.02
-    hi = np.ceil((world.info.roi[1] + 1.0) / 0.02) * 0.02
-    lo[2], hi[2] = -0.04, 2.0
-    cases += [("table-top", 0.01, args.stride, views, lo, hi),
-              ("table-top", 0.02, args.stride, views, lo, hi),
-              ("table-top", 0.01, 1, views, lo, hi)]  # fmt: skip
-    world, views = pan("kitchen", args.frames, args.pan)
-    # the live stack's kitchen map (avs/explore.py's scene_facts), on the 2 cm grid
-    info = world.info
-    pois = np.array([info.pois[k] for k in sorted(info.pois)]).reshape(-1, 3)
-    lo, hi = map_bounds(
-        info.roi, info.robot_start[:2], pois if len(pois) else look_target(world)[None, :],
-        footprint=world.robot.footprint_radius, workspace=info.workspace,
-    )  # fmt: skip
-    lo, hi = np.floor(lo / 0.02) * 0.02, np.ceil(hi / 0.02) * 0.02
-    cases += [("kitchen", 0.01, args.stride, views, lo, hi), ("kitchen", 0.01, 1, views, lo, hi)]
+    for name, voxel, views, lo, hi in rendered:
+        cases.append((name, voxel, args.stride, views, lo, hi))
+        if voxel == 0.01:  # and for reference every pixel
+            cases.append((name, voxel, 1, views, lo, hi))
 
     results = {}
     for name, voxel, stride, frames, lo, hi in cases:
