@@ -448,8 +448,8 @@ def ray_gain(
         tmx = tmx + tdx if cx else tmx
         tmy = tmy + tdy if cy else tmy
         tmz = tmz + tdz if cz else tmz
-        if volumes and s == COUNT:
-            volume += _cube(t0 + min(t, limit)) - _cube(t0 + enter)
+        if volumes:  # a voxel stepped through alone adds its stretch when it counts
+            volume += (_cube(t0 + min(t, limit)) - _cube(t0 + enter)) * s
         if ix < 0 or iy < 0 or iz < 0 or ix >= nx or iy >= ny or iz >= nz:
             break
     return count, volume
