@@ -12,6 +12,9 @@ class ServiceInfo:
     name: str
     summary: str
     scalable: bool = False
+    #: one instance works at a time, the others stand by to take over (a writer): each gets
+    #: every core, not a share of them
+    one_active: bool = False
 
     @property
     def module(self) -> str:
@@ -34,7 +37,7 @@ SERVICES: tuple[ServiceInfo, ...] = (
     ServiceInfo("sim", "MuJoCo ARMAR-6 / ARMAR-III: RGB-D, IMU, joints, odometry, ground truth"),
     ServiceInfo("perception", "RGB-D → primitives, spatial + support graph, affordances", True),
     # more than one scene memory: one writes, the others stand by to take over
-    ServiceInfo("scene_memory", "fusion across views, occupancy map, persistence", True),
+    ServiceInfo("scene_memory", "fusion across views, occupancy map, persistence", True, True),
     ServiceInfo("nbv", "next-best-view: sampling, information gain, path cost, utility", True),
     ServiceInfo("gaze", "ego-sphere view selection and gaze stabilisation"),
 )

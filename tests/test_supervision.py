@@ -190,6 +190,18 @@ def test_avs_up_services_join_as_peers_and_compose_wiring_stays_clients():
     assert env["AVS_MODE"] == "client"
 
 
+def test_scaled_workers_share_the_cores_and_a_standby_does_not_take_a_share(monkeypatch):
+    """Instances that work side by side (perception) share the host's cores out among their
+    numba threads; the scene memory's standby waits idle, so the active one gets every core."""
+    monkeypatch.delenv("NUMBA_NUM_THREADS", raising=False)
+    monkeypatch.setattr(os, "cpu_count", lambda: 4)
+    sup = Supervisor([BY_NAME["perception"], BY_NAME["scene_memory"], BY_NAME["nbv"]],
+                     "tcp/127.0.0.1:17447", scale={"perception": 2, "scene_memory": 2})  # fmt: skip
+    threads = {c.instance: sup.child_env(c).get("NUMBA_NUM_THREADS") for c in sup.children}
+    assert threads == {"perception-0": "2", "perception-1": "2", "scene_memory-0": None,
+                       "scene_memory-1": None, "nbv-0": None}  # fmt: skip
+
+
 @pytest.mark.parametrize(
     ("endpoint", "listen"),
     [
