@@ -172,9 +172,9 @@ class Supervisor:
         # the working directory must not shadow AVS's packages (a schemas/ folder there)
         env["PYTHONSAFEPATH"] = "1"
         siblings = sum(1 for c in self.children if c.info.name == child.info.name)
-        # instances that work side by side share the cores out; a standby waits, idle (the
-        # live stack's scene memory on one core of two: 7.2 fused frames a second, p50 194 ms
-        # after capture; on both: 8.4, 185 ms)
+        # instances that work side by side share the cores out; a standby waits, idle, and
+        # the one working takes every core (the live stack's scene memory ran its kernels on
+        # one core of two while its standby's share sat unused)
         if siblings > 1 and not child.info.one_active and "NUMBA_NUM_THREADS" not in os.environ:
             env["NUMBA_NUM_THREADS"] = str(threads_per_instance(siblings))
         env.update(self.extra_env)
