@@ -37,7 +37,9 @@ SERVICES: tuple[ServiceInfo, ...] = (
     ServiceInfo("sim", "MuJoCo ARMAR-6 / ARMAR-III: RGB-D, IMU, joints, odometry, ground truth"),
     ServiceInfo("perception", "RGB-D → primitives, spatial + support graph, affordances", True),
     # more than one scene memory: one writes, the others stand by to take over
-    ServiceInfo("scene_memory", "fusion across views, occupancy map, persistence", True, True),
+    ServiceInfo(
+        "scene_memory", "fusion across views, occupancy map, persistence", True, one_active=True
+    ),
     ServiceInfo("nbv", "next-best-view: sampling, information gain, path cost, utility", True),
     ServiceInfo("gaze", "ego-sphere view selection and gaze stabilisation"),
 )
