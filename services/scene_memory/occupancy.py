@@ -641,6 +641,11 @@ def _count(L, x0, y0, z0, x1, y1, z1, thresh_milli):
     return unknown, free, occupied
 
 
+def _walk_threads(pool: int) -> int:
+    """The threads that walk the rays, of a numba pool of ``pool``: a row of ``_visited`` each."""
+    return min(pool, WALK_THREADS)
+
+
 def _basis(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
     """Rows: the scan's mean direction (of a sample of its points) and two axes across it."""
     d = points[:: max(1, len(points) // 2000)] - origin
@@ -681,8 +686,7 @@ class OccupancyMap:
         direction cells of the passes (``_level``)."""
         blocks = math.prod((n + 7) // 8 for n in self.shape)
         # a row per walking thread (``_free``)
-        threads = min(numba.get_num_threads(), WALK_THREADS)
-        self._visited = np.zeros((threads, blocks * 64), np.uint8)
+        self._visited = np.zeros((_walk_threads(numba.get_num_threads()), blocks * 64), np.uint8)
         self._known_bits = np.zeros(blocks * 64, np.uint8)  # the known voxels (``_mark_known``)
         self._hit = np.zeros(blocks * 64, np.uint8)
         self._cleared = np.zeros(blocks * 64, np.uint8)
@@ -751,7 +755,8 @@ class OccupancyMap:
             self._rays = np.empty((len(points), 3), np.float64)
             self._ray_scratch = np.empty((len(points), 3), np.float64)
         nx, ny, nz = self.shape
-        threads = min(numba.get_num_threads(), WALK_THREADS)
+        pool = numba.get_num_threads()
+        threads = _walk_threads(pool)
         if len(self._visited) < threads:  # more threads than when the map was made
             self._visited = np.zeros((threads, self._visited.shape[1]), np.uint8)
         grid = (self._visited[0], self._hit, self._dirty, nx, ny, nz, self.lo, self.voxel, origin)
@@ -767,7 +772,6 @@ class OccupancyMap:
             _basis(points, origin), self._per_unit, self._grids, self._grid_off, self._grid_w,
             PASS_SPAN, self._ray_scratch, self._rays, starts,
         )  # fmt: skip
-        pool = numba.get_num_threads()
         if pool > threads:
             numba.set_num_threads(threads)  # a thread's id must name a row of ``_visited``
         try:

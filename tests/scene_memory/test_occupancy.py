@@ -37,6 +37,19 @@ def integrate(m: OccupancyMap, depth: np.ndarray, T: np.ndarray, **kw) -> int:
     return m.integrate_depth(depth, F, F, (W - 1) / 2, (H - 1) / 2, T, **kw)
 
 
+def moving_scans(seed: int, far_rows: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Eight noisy depth images of six boxes 0.6-1.5 m before a wall at 1.79 m (the top
+    ``far_rows`` rows past max range), from a camera moving 1 cm forward and 5 mm up a scan."""
+    rng = np.random.default_rng(seed)
+    base = np.full((H, W), 1.79, np.float32)
+    for _ in range(6):
+        r, c = rng.integers(0, H - 40), rng.integers(0, W - 40)
+        base[r : r + rng.integers(20, 80), c : c + rng.integers(20, 100)] = rng.uniform(0.6, 1.5)
+    base[:far_rows] = 3.6
+    return [(base + rng.normal(0, 0.004, base.shape).astype(np.float32),
+             camera_facing_x(0.2 + 0.01 * i, 1.0 + 0.005 * i)) for i in range(8)]  # fmt: skip
+
+
 def state(m: OccupancyMap, point) -> int:
     p = m.probability(np.array(point, float))
     if p is None:
@@ -265,13 +278,7 @@ def test_rays_cross_saturated_free_blocks_in_one_step_and_change_nothing(monkeyp
 
     monkeypatch.setattr(occupancy, "PATIENCE", 0)
     monkeypatch.setattr(occupancy, "PATIENCE_REST", 0)
-    rng = np.random.default_rng(5)
-    base = np.full((H, W), 1.79, np.float32)
-    for _ in range(6):
-        r, c = rng.integers(0, H - 40), rng.integers(0, W - 40)
-        base[r : r + rng.integers(20, 80), c : c + rng.integers(20, 100)] = rng.uniform(0.6, 1.5)
-    scans = [(base + rng.normal(0, 0.004, base.shape).astype(np.float32),
-              camera_facing_x(0.2 + 0.01 * i, 1.0 + 0.005 * i)) for i in range(8)]  # fmt: skip
+    scans = moving_scans(5)
     skipping, walking = (OccupancyMap(LO, HI, OccupancyConfig(voxel=0.02)) for _ in range(2))
     for depth, T in scans:
         integrate(skipping, depth, T)
@@ -306,14 +313,7 @@ def test_the_map_is_the_same_whichever_threads_walk_the_rays(monkeypatch):
 
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("one thread only")
-    rng = np.random.default_rng(11)
-    base = np.full((H, W), 1.79, np.float32)
-    for _ in range(6):
-        r, c = rng.integers(0, H - 40), rng.integers(0, W - 40)
-        base[r : r + rng.integers(20, 80), c : c + rng.integers(20, 100)] = rng.uniform(0.6, 1.5)
-    base[:30] = 3.6  # past max range
-    scans = [(base + rng.normal(0, 0.004, base.shape).astype(np.float32),
-              camera_facing_x(0.2 + 0.01 * i, 1.0 + 0.005 * i)) for i in range(8)]  # fmt: skip
+    scans = moving_scans(11, far_rows=30)
     maps = {}
     before = numba.get_num_threads()
     try:
