@@ -55,6 +55,8 @@ from schemas import (
 from services.common.poses import pose_difference
 
 EPISODE_SERVICES = ("sim", "perception", "scene_memory", "nbv")
+#: how long the driver waits for the sim to apply the planner's commands of a step
+COMMAND_WAIT_S = 30.0
 #: a view that realises less than this share of its predicted gain is a warning sign
 REALISED_SHARE = 0.1
 log = logging.getLogger("avs.explore")
@@ -343,6 +345,25 @@ class Episode:
             if seq is not None:
                 latest.wait(lambda m, s=seq: m.seq >= s, 30, f"the sim's {stream} state {seq}")
 
+    def _await_commands(
+        self, session, seq: int, streams: tuple[str, ...], timeout: float = COMMAND_WAIT_S
+    ) -> None:
+        """Wait until the sim applied the planner's commands of step ``seq`` on ``streams``.
+        They travel from the planner, by a route of their own; the plan's reply and this
+        driver's first step can overtake them, and a goal that lands a step late drives
+        another trajectory (the episode would depend on the machine's load)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            applied = self._sim(session, op="status").applied
+            if all(applied.get(s, -1) >= seq for s in streams):
+                return
+            if time.monotonic() > deadline:
+                raise TimeoutError(
+                    f"the sim has not applied the planner's {'/'.join(streams)} commands of "
+                    f"step {seq} after {timeout:g} s (applied: {applied})"
+                )
+            time.sleep(0.005)
+
     def _settle(
         self, session, base: Latest, joints: Latest, nbv: NextBestView, goal: str, trajectory: list
     ) -> bool:
@@ -459,6 +480,7 @@ class Episode:
             # the first view is taken where the robot stands, unless it has to turn first
             moves = view > 0 or nbv.cost > 0
             goal, trajectory = f"view-{view}" if moves else "", []
+            self._await_commands(session, view, ("base", "head") if moves else ("head",))
             reached = self._settle(session, base, joints, nbv, goal, trajectory)
             n_frames = frames.count
             self._sim(session, op="render")

@@ -104,3 +104,7 @@ class SimStatus(Message):
     #: the seq of the newest message each state stream ("imu", "joints", "base") has put on the
     #: wire since the reset: a lockstep driver waits for these before it reads the streams
     published: dict[str, int] = Field(default_factory=dict)
+    #: the seq of the newest command the sim applied on each command stream ("base", "head",
+    #: "arm") since the reset: a lockstep driver waits for a planner's commands before it steps
+    #: (they come by another route than its own request, and could land a step late)
+    applied: dict[str, int] = Field(default_factory=dict)

@@ -115,6 +115,7 @@ class SimNode:
         self.out_base = node.publisher(k.base_state(), **qos)
         self.seq: dict[str, int] = {}  # the newest seq given to a message of each stream
         self.published: dict[str, int] = {}  # ... and the newest put on the wire
+        self.applied: dict[str, int] = {}  # the newest command's seq applied, per command stream
         self._gt_cache: tuple[np.ndarray, list, list] | None = None
         node.subscribe(k.cmd_base(), (BaseGoal, BaseVelocity), self.on_cmd_base)
         # on the wall clock, head commands (1 kHz from the gaze) wait for the physics loop,
@@ -302,6 +303,7 @@ class SimNode:
                 self.world.set_base_goal(cmd.x, cmd.y, cmd.yaw, cmd.path, cmd.goal_id)
             else:
                 self.world.set_base_velocity(cmd.v_x, cmd.v_y, cmd.v_yaw, cmd.timeout)
+            self.applied["base"] = cmd.seq
 
     def apply_head_commands(self) -> None:
         """The head and arm commands that came since the last step, in order (lock held)."""
@@ -326,6 +328,7 @@ class SimNode:
             )
         except KeyError as e:
             refused = [str(e)]
+        self.applied["arm"] = cmd.seq
         if refused and self.node.metrics.drop("unknown_joint"):
             log.warning("ignoring arm command for %s: %s", cmd.arm, refused)
 
@@ -337,6 +340,7 @@ class SimNode:
     def on_cmd_head(self, cmd: HeadCommand) -> None:
         """Apply one head command (lock held)."""
         unknown = self.world.command_joints(cmd.names, cmd.mode, cmd.values)
+        self.applied["head"] = cmd.seq
         if unknown and self.node.metrics.drop("unknown_joint"):
             log.warning(
                 "ignoring commands for unknown joints %s (known: %s)",
@@ -357,6 +361,7 @@ class SimNode:
             steps=self.world.steps,
             paused=self.paused,
             published=dict(self.published),
+            applied=dict(self.applied),
         )
 
     def on_control(self, request: SimControl | None) -> SimStatus:
@@ -380,6 +385,7 @@ class SimNode:
                 self.sensors = self._sensors(seed)
                 self.seq.clear()
                 self.published.clear()
+                self.applied.clear()
                 self._gt_cache = None
             return self.status()
         if op == "step":

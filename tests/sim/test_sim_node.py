@@ -14,6 +14,7 @@ import pytest
 import zenoh
 from mcap.reader import make_reader
 
+from avs.explore import Episode, EpisodeConfig
 from schemas import (
     BaseGoal,
     BasePose,
@@ -139,14 +140,23 @@ def test_commands_and_streams_over_zenoh(client, router, procs):
     )
     goal = matched_publisher(client, KEYS.cmd_base(), timeout=30)
     head = matched_publisher(client, KEYS.cmd_head(), timeout=30)
-    goal.put(encode(BaseGoal(goal_id="g", x=-0.3, y=0.2, yaw=0.5)))
+    assert control(client, op="status").applied == {}
+    # a driver that waits for the planner's commands of a step names what did not come
+    episode = Episode(EpisodeConfig(scene="tabletop_clutter"))
+    with pytest.raises(TimeoutError, match=r"base/head commands of step 7 after 0.2 s"):
+        episode._await_commands(client, 7, ("base", "head"), timeout=0.2)
+    goal.put(encode(BaseGoal(seq=7, goal_id="g", x=-0.3, y=0.2, yaw=0.5)))
     head.put(
         encode(
-            HeadCommand(names=["neck_yaw", "wrist"], mode="position", values=np.array([0.3, 1.0]))
+            HeadCommand(
+                seq=7, names=["neck_yaw", "wrist"], mode="position", values=np.array([0.3, 1.0])
+            )
         )
     )
     head.put(b"not a command")
+    episode._await_commands(client, 7, ("base", "head"))  # ... and goes on once applied
     wait_for(lambda: _metric_drops(client, "cmd") >= 2, 30, "the sim to take the commands")
+    assert control(client, op="status").applied == {"base": 7, "head": 7}
     status = control(client, op="step", n=4000)
     assert status.sim_time == pytest.approx(4.0, abs=1e-6)
     # the reply names the newest sample of each stream, for a driver to wait for
