@@ -14,7 +14,8 @@ cut, whose rays cross the same voxels to within one, and casting each of them wa
 kitchen frame's rays for 0.2 % of its free voxels.
 
 Log-odds are stored as int16 thousandths; -32768 marks unknown. A bounded workspace fits a
-dense array: 4 m × 4 m × 2 m at 1 cm is 32 M voxels, 64 MB.
+dense array: 4 m × 4 m × 2 m at 1 cm is 32 M voxels, 64 MB, kept in 8×8×8 blocks of 1 KB
+(``blocked``), the unit in which a scan updates them.
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ import numpy as np
 from numba import get_thread_id, njit, prange
 
 from services.common.dda import dda_axis
+from services.scene_memory import blocked
 
-UNKNOWN = np.int16(-32768)
+UNKNOWN = blocked.UNKNOWN
 SCALE = 1000.0  # stored value = log-odds × SCALE
 STATE_UNKNOWN, STATE_FREE, STATE_OCCUPIED = 0, 1, 2
 
@@ -378,43 +380,6 @@ def _walk(
             break
 
 
-@njit(cache=True, nogil=True)
-def _pack_known(flat):
-    """(the known-voxel mask packed 8 to a byte, first voxel in the high bit, as
-    ``np.packbits``; the known voxels' values in order): a snapshot's map in two passes over
-    the grid and no temporary of its size (numpy's mask, compress and concatenate made three,
-    fresh pages each time, in a capture that held the memory's locks 375-573 ms live); four
-    voxels are tested at once where all four are unknown, as most of a map is."""
-    n = flat.shape[0]
-    words = flat[: n - n % 4].view(np.int64)  # four voxels at a time: all unknown, or not
-    pattern = np.int64(0)
-    for _ in range(4):
-        pattern = (pattern << 16) | np.int64(0x8000)
-    count = 0
-    for w in range(words.shape[0]):
-        if words[w] != pattern:
-            for i in range(4 * w, 4 * w + 4):
-                count += flat[i] != UNKNOWN
-    for i in range(n - n % 4, n):
-        count += flat[i] != UNKNOWN
-    bits = np.zeros((n + 7) // 8, np.uint8)
-    values = np.empty(count, flat.dtype)
-    k = 0
-    for w in range(words.shape[0]):
-        if words[w] != pattern:
-            for i in range(4 * w, 4 * w + 4):
-                if flat[i] != UNKNOWN:
-                    bits[i >> 3] |= np.uint8(0x80 >> (i & 7))
-                    values[k] = flat[i]
-                    k += 1
-    for i in range(n - n % 4, n):
-        if flat[i] != UNKNOWN:
-            bits[i >> 3] |= np.uint8(0x80 >> (i & 7))
-            values[k] = flat[i]
-            k += 1
-    return bits, values
-
-
 @njit(cache=True, nogil=True, parallel=True)
 def _unknown_on_rays(known, nx, ny, nz, lo, voxel, origin, ends, box):
     """Σ over rays of the unknown voxels inside the index box ``box`` (x0, y0, z0, x1, y1, z1)
@@ -473,20 +438,6 @@ def _unknown_on_rays(known, nx, ny, nz, lo, voxel, origin, ends, box):
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _mark_known(L, known):
-    """The known voxels' bit set (``_slot``'s layout) of a map's values: a restored map's."""
-    nx, ny, nz = L.shape
-    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
-    for i in prange(nx):  # a word holds voxels of one x: threads never share one
-        x = np.int64(i)  # (prange's index may be unsigned: ``_slot`` needs int64)
-        for y in range(ny):
-            for z in range(nz):
-                if L[x, y, z] != -32768:
-                    _, w, bit = _slot(x, y, z, by, bz)
-                    known[w] |= bit
-
-
-@njit(cache=True, nogil=True, parallel=True)
 def _free(
     visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, rays, max_range, chunks,
     patience,
@@ -531,14 +482,16 @@ def _snapshot(visited, cleared, dirty):
 
 @njit(cache=True, nogil=True)
 def _apply_block(
-    L, visited, hit, cleared, known_bits, saturated, block, by, bz, d_hit, d_miss, d_min, d_max,
-    box, out,
+    V, shape, visited, hit, cleared, known_bits, saturated, block, by, bz, d_hit, d_miss, d_min,
+    d_max, box, out,
 ):  # fmt: skip
-    """Update the visited voxels of one 8×8×8 block, mark them known and clear their bits. In
+    """Update the visited voxels of one 8×8×8 block of the values ``V`` (``blocked``: its 1 KB
+    in a row), mark them known and clear their bits. In
     thousandths: the rounding of (old / 1000 + l) · 1000 is old + round(1000 · l), old being
     whole. ``out``: (voxels updated, of them unknown before and inside the index box ``box``).
     ``saturated[block]`` anew (as ``_saturate``): no, once an updated voxel is above the clamp
     ``d_min``; yes, when all 512 were updated to it; else as the block's voxels say."""
+    nx, ny, nz = shape
     x0 = (block // (by * bz)) << 3
     y0 = ((block // bz) % by) << 3
     z0 = (block % bz) << 3
@@ -563,12 +516,13 @@ def _apply_block(
         for b in range(8):
             if (seen >> b) & 1:
                 iz = z0 | b
-                old = np.int32(L[ix, iy, iz])
+                at = (w << 3) | b
+                old = np.int32(V[at])
                 if old == -32768:
                     known += inside and box[2] <= iz < box[5]
                     old = 0
                 value = min(max(old + (d_hit if (hits >> b) & 1 else d_miss), d_min), d_max)
-                L[ix, iy, iz] = np.int16(value)
+                V[at] = np.int16(value)
                 at_min &= value == d_min
                 n += 1
     out[0], out[1] = n, known
@@ -577,68 +531,26 @@ def _apply_block(
     elif n == 512:
         saturated[block] = 1
     else:
-        nx, ny, nz = L.shape
-        saturated[block] = _all_at(
-            L, x0, y0, z0, min(x0 + 8, nx), min(y0 + 8, ny), min(z0 + 8, nz), d_min
-        )
+        saturated[block] = blocked.all_at(V, block, by, bz, nx, ny, nz, d_min)
 
 
 @njit(cache=True, nogil=True, parallel=True)
 def _apply(
-    L, visited, hit, cleared, known_bits, saturated, blocks, d_hit, d_miss, d_min, d_max, box
+    V, shape, visited, hit, cleared, known_bits, saturated, blocks, d_hit, d_miss, d_min, d_max,
+    box,
 ):  # fmt: skip
     """Update every visited voxel of the dirty ``blocks`` once (hit: d_hit, else d_miss, in
     thousandths, clamped to [d_min, d_max]), clear its bits and tell whether its block is
     ``saturated`` now; blocks in parallel, they share no voxel. Returns (voxels updated, of
     them unknown before inside the index box ``box``: the volume the scan made known there)."""
-    by, bz = (L.shape[1] + 7) >> 3, (L.shape[2] + 7) >> 3
+    by, bz = (shape[1] + 7) >> 3, (shape[2] + 7) >> 3
     counts = np.zeros((blocks.shape[0], 2), np.int64)
     for k in prange(blocks.shape[0]):
         _apply_block(
-            L, visited, hit, cleared, known_bits, saturated, blocks[k], by, bz, d_hit, d_miss,
-            d_min, d_max, box, counts[k],
+            V, shape, visited, hit, cleared, known_bits, saturated, blocks[k], by, bz, d_hit,
+            d_miss, d_min, d_max, box, counts[k],
         )  # fmt: skip
     return counts[:, 0].sum(), counts[:, 1].sum()
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _saturate(L, saturated, blocks, d_min):
-    """``saturated[b]``: every voxel of block b (within the grid) is free at the clamp
-    ``d_min`` (a miss leaves it as it is), for the listed ``blocks``."""
-    nx, ny, nz = L.shape
-    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
-    for k in prange(blocks.shape[0]):
-        b = blocks[k]
-        x0, y0, z0 = (b // (by * bz)) << 3, ((b // bz) % by) << 3, (b % bz) << 3
-        saturated[b] = _all_at(L, x0, y0, z0, min(x0 + 8, nx), min(y0 + 8, ny), min(z0 + 8, nz),
-                               d_min)  # fmt: skip
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _all_at(L, x0, y0, z0, x1, y1, z1, value):
-    """Every voxel of the box at ``value`` (stops at the first that is not: most are not)."""
-    for x in range(x0, x1):
-        for y in range(y0, y1):
-            for z in range(z0, z1):
-                if L[x, y, z] != value:
-                    return 0
-    return 1
-
-
-@njit(cache=True, nogil=True)
-def _count(L, x0, y0, z0, x1, y1, z1, thresh_milli):
-    unknown = free = occupied = 0
-    for i in range(x0, x1):
-        for j in range(y0, y1):
-            for k in range(z0, z1):
-                v = L[i, j, k]
-                if v == -32768:
-                    unknown += 1
-                elif v > thresh_milli:
-                    occupied += 1
-                else:
-                    free += 1
-    return unknown, free, occupied
 
 
 def _walk_threads(pool: int) -> int:
@@ -669,7 +581,7 @@ class OccupancyMap:
         self.lo = np.asarray(lo, np.float64)
         self.shape = tuple(math.ceil(s) for s in (np.asarray(hi) - self.lo) / v - 1e-9)
         self.hi = self.lo + np.array(self.shape) * v
-        self.L = np.full(self.shape, UNKNOWN, np.int16)
+        self.values = blocked.empty(self.shape)  # in 8×8×8 blocks (``blocked``; ``L``: dense)
         self._scratch()
         c = self.config
         self.l_hit, self.l_miss = logit(c.p_hit), logit(c.p_miss)
@@ -687,7 +599,7 @@ class OccupancyMap:
         blocks = math.prod((n + 7) // 8 for n in self.shape)
         # a row per walking thread (``_free``)
         self._visited = np.zeros((_walk_threads(numba.get_num_threads()), blocks * 64), np.uint8)
-        self._known_bits = np.zeros(blocks * 64, np.uint8)  # the known voxels (``_mark_known``)
+        self._known_bits = np.zeros(blocks * 64, np.uint8)  # the known voxels (``mark_known``)
         self._hit = np.zeros(blocks * 64, np.uint8)
         self._cleared = np.zeros(blocks * 64, np.uint8)
         self._dirty = np.zeros(blocks, np.uint8)
@@ -718,20 +630,37 @@ class OccupancyMap:
         state = dict(self.__dict__)
         for k in SCRATCH:
             state.pop(k)
-        state["_known"], state["_values"] = _pack_known(state.pop("L").reshape(-1))
+        state["_known"], state["_values"] = blocked.pack_known(state.pop("values"), *self.shape)
         return state
 
     def __setstate__(self, state: dict) -> None:
-        known = np.unpackbits(state.pop("_known"), count=math.prod(state["shape"]))
-        values = state.pop("_values")
+        bits, known = state.pop("_known"), state.pop("_values")
         self.__dict__.update(state)
-        self.L = np.full(self.shape, UNKNOWN, np.int16)
-        self.L[known.reshape(self.shape).view(bool)] = values
+        self.shape = tuple(int(n) for n in self.shape)
+        self.values = blocked.empty(self.shape)
+        blocked.unpack_known(bits, known, *self.shape, self.values)
+        self._rebuild()
+
+    def _rebuild(self) -> None:
+        """The scratch, and what it keeps of the values: which blocks they saturate, which
+        voxels are known."""
         self._scratch()
-        # what the scratch keeps of the values: which blocks they saturate, which voxels known
         blocks = np.arange(len(self._saturated), dtype=np.int64)
-        _saturate(self.L, self._saturated, blocks, self._milli[2])
-        _mark_known(self.L, self._known_bits)
+        blocked.saturate(self.values, self._saturated, blocks, *self.shape, self._milli[2])
+        blocked.mark_known(self.values, self._known_bits)
+
+    @property
+    def L(self) -> np.ndarray:
+        """The log-odds thousandths as a dense (x, y, z) array: a copy (tests, tools)."""
+        return blocked.dense(self.values, self.shape)
+
+    @L.setter
+    def L(self, grid: np.ndarray) -> None:
+        """Replace every value (a dense (x, y, z) array of the map's shape)."""
+        if grid.shape != self.shape:
+            raise ValueError(f"a grid of {grid.shape} for a map of {self.shape}")
+        blocked.from_dense(np.asarray(grid, np.int16), self.values)
+        self._rebuild()
 
     @property
     def voxel(self) -> float:
@@ -783,8 +712,8 @@ class OccupancyMap:
         index = np.array(self._index_box(*box) if box is not None else (0, 0, 0, nx, ny, nz),
                          np.int64)  # fmt: skip
         count, known = _apply(
-            self.L, self._visited, self._hit, self._cleared, self._known_bits, self._saturated,
-            blocks, *self._milli, index,
+            self.values, self.shape, self._visited, self._hit, self._cleared, self._known_bits,
+            self._saturated, blocks, *self._milli, index,
         )  # fmt: skip
         self.made_known = int(known)
         self.frames += 1
@@ -867,7 +796,9 @@ class OccupancyMap:
         box_min = self.lo if box_min is None else box_min
         box_max = self.hi if box_max is None else box_max
         x0, y0, z0, x1, y1, z1 = self._index_box(box_min, box_max)
-        return _count(self.L, x0, y0, z0, x1, y1, z1, int(self.l_thresh * SCALE))
+        by, bz = blocked.blocks_of(self.shape)[1:]
+        thresh = int(self.l_thresh * SCALE)
+        return blocked.count(self.values, by, bz, x0, y0, z0, x1, y1, z1, thresh)
 
     def states(self, box_min=None, box_max=None) -> tuple[np.ndarray, np.ndarray]:
         """(origin of the box's first voxel, uint8 states: 0 unknown, 1 free, 2 occupied)."""
@@ -884,10 +815,9 @@ class OccupancyMap:
     def states_in(self, index: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
         """``states`` of a voxel index range (x0, y0, z0, x1, y1, z1)."""
         x0, y0, z0, x1, y1, z1 = index
-        sub = self.L[x0:x1, y0:y1, z0:z1]
-        out = np.full(sub.shape, STATE_FREE, np.uint8)
-        out[sub > int(self.l_thresh * SCALE)] = STATE_OCCUPIED
-        out[sub == UNKNOWN] = STATE_UNKNOWN
+        out = np.empty((max(x1 - x0, 0), max(y1 - y0, 0), max(z1 - z0, 0)), np.uint8)
+        by, bz = blocked.blocks_of(self.shape)[1:]
+        blocked.states(self.values, by, bz, x0, y0, z0, int(self.l_thresh * SCALE), out)
         return self.lo + np.array([x0, y0, z0]) * self.voxel, out
 
     def probability(self, point: np.ndarray) -> float | None:
@@ -895,7 +825,9 @@ class OccupancyMap:
         k = np.floor((np.asarray(point) - self.lo) / self.voxel).astype(int)
         if np.any(k < 0) or np.any(k >= self.shape):
             return None
-        v = self.L[tuple(k)]
+        x, y, z = (int(i) for i in k)
+        by, bz = blocked.blocks_of(self.shape)[1:]
+        v = self.values[blocked.along(blocked.row(x, y, by, bz), z)]
         return None if v == UNKNOWN else 1 / (1 + math.exp(-v / SCALE))
 
 
@@ -911,4 +843,4 @@ def warm_up() -> None:
     m.integrate_depth(depth, 30.0, 30.0, 15.5, 11.5, T)
     m.counts()
     m.states()
-    _pack_known(m.L.reshape(-1))
+    m.__setstate__(m.__getstate__())

@@ -332,19 +332,3 @@ def test_the_map_is_the_same_whichever_threads_walk_the_rays(monkeypatch):
     for m in maps.values():
         assert np.array_equal(m.L, one.L)
         assert np.array_equal(m._saturated, one._saturated)
-
-
-@pytest.mark.parametrize("n", [0, 3, 8, 1001, 65_539])
-def test_a_snapshot_packs_the_known_voxels_as_numpy_would(n):
-    """The snapshot's compiled packing (four voxels at a time where all are unknown) against
-    numpy's packbits and compress, on sizes that are no multiple of 4 or 8."""
-    from services.scene_memory.occupancy import UNKNOWN, _pack_known
-
-    rng = np.random.default_rng(n)
-    flat = np.full(n, UNKNOWN, np.int16)
-    known = rng.random(n) < 0.1
-    known[-1:] = True  # the tail past the last whole word too
-    flat[known] = rng.integers(-2000, 2000, known.sum())
-    bits, values = _pack_known(flat)
-    assert np.array_equal(bits, np.packbits(flat != UNKNOWN))
-    assert np.array_equal(values, flat[flat != UNKNOWN])

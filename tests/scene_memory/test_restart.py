@@ -31,6 +31,7 @@ def test_a_35_mb_map_is_served_within_2_s_of_a_kill_9(client, router, procs, tmp
     L = memory.occupancy.L
     L[:, :, :56] = -200  # 14 M voxels known (free): what a long run leaves behind
     L[200:260, 200:260, 40:56] = 300  # and some occupied
+    memory.occupancy.L = L
     Store(tmp_path).snapshot(memory, 1)
     size = (tmp_path / "snapshot.avs").stat().st_size
     assert 30e6 < size < 45e6, size
