@@ -630,7 +630,9 @@ class OccupancyMap:
         state = dict(self.__dict__)
         for k in SCRATCH:
             state.pop(k)
-        state["_known"], state["_values"] = blocked.pack_known(state.pop("values"), *self.shape)
+        state["_known"], state["_values"] = blocked.pack_known(
+            state.pop("values"), self._known_bits, *self.shape
+        )
         return state
 
     def __setstate__(self, state: dict) -> None:

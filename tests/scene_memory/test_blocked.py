@@ -58,12 +58,15 @@ def test_counts_and_states_of_a_box_as_numpy_says(shape):
 
 @pytest.mark.parametrize("shape", SHAPES)
 def test_a_snapshot_packs_the_known_voxels_in_the_dense_order_as_numpy_would(shape):
-    """The compiled packing (a row of 8 at once where all are unknown) against numpy's
-    packbits and compress of the dense grid; unpacked, the same values."""
+    """The compiled packing (reading the known bits, not the values, of a row of 8 unknown
+    ones) against numpy's packbits and compress of the dense grid; unpacked, the same
+    values."""
     grid = random_grid(shape, 5)
     values = blocked.empty(shape)
     blocked.from_dense(grid, values)
-    bits, known = blocked.pack_known(values, *shape)
+    known_bits = np.zeros(len(values) // 8, np.uint8)
+    blocked.mark_known(values, known_bits)
+    bits, known = blocked.pack_known(values, known_bits, *shape)
     assert np.array_equal(bits, np.packbits(grid != UNKNOWN))
     assert np.array_equal(known, grid[grid != UNKNOWN])
     back = blocked.empty(shape)
