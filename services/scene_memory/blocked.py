@@ -68,8 +68,16 @@ def along(r, z):
 
 
 @njit(cache=True, nogil=True)
-def count(values, by, bz, x0, y0, z0, x1, y1, z1, thresh_milli):
-    """(unknown, free, occupied) voxels of the index box [x0, x1) × [y0, y1) × [z0, z1)."""
+def at(x, y, z, ny, nz):
+    """Where the value of (x, y, z) is, in a grid of (·, ny, nz)."""
+    return along(row(x, y, (ny + 7) >> 3, (nz + 7) >> 3), z)
+
+
+@njit(cache=True, nogil=True)
+def count(values, ny, nz, x0, y0, z0, x1, y1, z1, thresh_milli):
+    """(unknown, free, occupied) voxels of the index box [x0, x1) × [y0, y1) × [z0, z1) of a
+    grid of (·, ny, nz)."""
+    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
     unknown = occupied = 0
     for x in range(x0, x1):
         for y in range(y0, y1):
@@ -85,9 +93,10 @@ def count(values, by, bz, x0, y0, z0, x1, y1, z1, thresh_milli):
 
 
 @njit(cache=True, nogil=True)
-def states(values, by, bz, x0, y0, z0, thresh_milli, out):
-    """``out`` (the box's shape, from (x0, y0, z0)): 0 unknown, 1 free, 2 occupied
-    (``occupancy.STATE_*``)."""
+def states(values, ny, nz, x0, y0, z0, thresh_milli, out):
+    """``out`` (the box's shape, from (x0, y0, z0) of a grid of (·, ny, nz)): 0 unknown, 1 free,
+    2 occupied (``occupancy.STATE_*``)."""
+    by, bz = (ny + 7) >> 3, (nz + 7) >> 3
     z1 = z0 + out.shape[2]
     for i in range(out.shape[0]):
         for j in range(out.shape[1]):

@@ -486,11 +486,11 @@ def _apply_block(
     d_max, box, out,
 ):  # fmt: skip
     """Update the visited voxels of one 8×8×8 block of the values ``V`` (``blocked``: its 1 KB
-    in a row), mark them known and clear their bits. In
-    thousandths: the rounding of (old / 1000 + l) · 1000 is old + round(1000 · l), old being
-    whole. ``out``: (voxels updated, of them unknown before and inside the index box ``box``).
-    ``saturated[block]`` anew (as ``_saturate``): no, once an updated voxel is above the clamp
-    ``d_min``; yes, when all 512 were updated to it; else as the block's voxels say."""
+    in a row), mark them known and clear their bits. In thousandths: the rounding of
+    (old / 1000 + l) · 1000 is old + round(1000 · l), old being whole. ``out``: (voxels
+    updated, of them unknown before and inside the index box ``box``). ``saturated[block]``
+    anew (as ``blocked.saturate``): no, once an updated voxel is above the clamp ``d_min``;
+    yes, when all 512 were updated to it; else as the block's voxels say."""
     nx, ny, nz = shape
     x0 = (block // (by * bz)) << 3
     y0 = ((block // bz) % by) << 3
@@ -798,9 +798,8 @@ class OccupancyMap:
         box_min = self.lo if box_min is None else box_min
         box_max = self.hi if box_max is None else box_max
         x0, y0, z0, x1, y1, z1 = self._index_box(box_min, box_max)
-        by, bz = blocked.blocks_of(self.shape)[1:]
         thresh = int(self.l_thresh * SCALE)
-        return blocked.count(self.values, by, bz, x0, y0, z0, x1, y1, z1, thresh)
+        return blocked.count(self.values, *self.shape[1:], x0, y0, z0, x1, y1, z1, thresh)
 
     def states(self, box_min=None, box_max=None) -> tuple[np.ndarray, np.ndarray]:
         """(origin of the box's first voxel, uint8 states: 0 unknown, 1 free, 2 occupied)."""
@@ -818,8 +817,8 @@ class OccupancyMap:
         """``states`` of a voxel index range (x0, y0, z0, x1, y1, z1)."""
         x0, y0, z0, x1, y1, z1 = index
         out = np.empty((max(x1 - x0, 0), max(y1 - y0, 0), max(z1 - z0, 0)), np.uint8)
-        by, bz = blocked.blocks_of(self.shape)[1:]
-        blocked.states(self.values, by, bz, x0, y0, z0, int(self.l_thresh * SCALE), out)
+        thresh = int(self.l_thresh * SCALE)
+        blocked.states(self.values, *self.shape[1:], x0, y0, z0, thresh, out)
         return self.lo + np.array([x0, y0, z0]) * self.voxel, out
 
     def probability(self, point: np.ndarray) -> float | None:
@@ -827,9 +826,7 @@ class OccupancyMap:
         k = np.floor((np.asarray(point) - self.lo) / self.voxel).astype(int)
         if np.any(k < 0) or np.any(k >= self.shape):
             return None
-        x, y, z = (int(i) for i in k)
-        by, bz = blocked.blocks_of(self.shape)[1:]
-        v = self.values[blocked.along(blocked.row(x, y, by, bz), z)]
+        v = self.values[blocked.at(*(int(i) for i in k), *self.shape[1:])]
         return None if v == UNKNOWN else 1 / (1 + math.exp(-v / SCALE))
 
 

@@ -29,10 +29,9 @@ def test_the_values_are_where_a_dense_grid_has_them(shape):
     assert len(values) == np.prod(blocked.blocks_of(shape)) * 512
     blocked.from_dense(grid, values)
     assert np.array_equal(blocked.dense(values, shape), grid)
-    by, bz = blocked.blocks_of(shape)[1:]
     rng = np.random.default_rng(2)
     for x, y, z in zip(*(rng.integers(0, n, 20) for n in shape), strict=True):
-        assert values[blocked.along(blocked.row(x, y, by, bz), z)] == grid[x, y, z]
+        assert values[blocked.at(x, y, z, *shape[1:])] == grid[x, y, z]
     # the padding stays unknown
     assert (values != UNKNOWN).sum() == (grid != UNKNOWN).sum()
 
@@ -42,7 +41,6 @@ def test_counts_and_states_of_a_box_as_numpy_says(shape):
     grid = random_grid(shape, 3)
     values = blocked.empty(shape)
     blocked.from_dense(grid, values)
-    by, bz = blocked.blocks_of(shape)[1:]
     rng = np.random.default_rng(4)
     for _ in range(10):
         a = [int(rng.integers(0, n)) for n in shape]
@@ -50,9 +48,9 @@ def test_counts_and_states_of_a_box_as_numpy_says(shape):
         sub = grid[a[0] : b[0], a[1] : b[1], a[2] : b[2]]
         unknown, occupied = (sub == UNKNOWN).sum(), (sub > 100).sum()
         expected = (unknown, sub.size - unknown - occupied, occupied)
-        assert blocked.count(values, by, bz, *a, *b, 100) == expected
+        assert blocked.count(values, *shape[1:], *a, *b, 100) == expected
         out = np.empty(sub.shape, np.uint8)
-        blocked.states(values, by, bz, *a, 100, out)
+        blocked.states(values, *shape[1:], *a, 100, out)
         assert np.array_equal(out, np.where(sub == UNKNOWN, 0, np.where(sub > 100, 2, 1)))
 
 
