@@ -109,6 +109,7 @@ SCRATCH = (
     "_saturated",
     "_rays",
     "_keys",
+    "_dir_cells",
     "_ray_scratch",
     "_seen",
     "_per_unit",
@@ -142,42 +143,57 @@ def _slot(ix, iy, iz, by, bz):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _level(dx, dy, dz, dist, basis, per_unit, grids, grid_off, grid_w, span):
-    """The pass of the ray along (dx, dy, dz): the coarsest level whose direction cell (a
-    square of 1 / ``per_unit[level]`` on the plane z = 1 of ``basis``) no ray claimed yet, or the
-    last pass. Each pass then holds about one ray per cell: the coarse passes fill the space
-    near the sensor, which the rays of the later passes cross block by block."""
-    last = per_unit.shape[0]
-    c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
-    if c <= 0.25 * dist:
-        return last
-    u = (dx * basis[1, 0] + dy * basis[1, 1] + dz * basis[1, 2]) / c + span
-    v = (dx * basis[2, 0] + dy * basis[2, 1] + dz * basis[2, 2]) / c + span
-    if not (0.0 <= u < 2 * span and 0.0 <= v < 2 * span):
+def _claim(cells, grids):
+    """The pass of a ray whose direction cells are ``cells`` (one per pass but the last, -1:
+    outside the planes): the coarsest whose cell no ray claimed yet, claimed now, or the last
+    pass. Each pass then holds about one ray per cell: the coarse passes fill the space near the
+    sensor, which the rays of the later passes cross block by block."""
+    last = cells.shape[0]
+    if last == 0 or cells[0] < 0:
         return last
     for k in range(last):
-        cell = grid_off[k] + int(u * per_unit[k]) * grid_w[k] + int(v * per_unit[k])
-        if grids[cell] == 0:
-            grids[cell] = 1
+        if grids[cells[k]] == 0:
+            grids[cells[k]] = 1
             return k
     return last
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _cells(points, lo, voxel, keys):
-    """The voxel of every point as one key (``_key``; -1: a NaN or inf coordinate), in
-    parallel: the arithmetic of ``_hits`` that needs no order."""
+def _cells(
+    points, lo, voxel, origin, discretize, basis, per_unit, grid_off, grid_w, span, keys, cells
+):  # fmt: skip
+    """In parallel, the arithmetic of ``_hits`` that needs no order: the voxel of every point
+    as one key (``_key``; -1: a NaN or inf coordinate), and the direction cells of its ray
+    (to its voxel's centre with ``discretize``) in each pass's grid (``_claim``; ``cells[r, 0]``
+    -1: the ray is more than acos(0.25) off the plane z = 1 of ``basis`` or beyond ``span``
+    on it). A pass's cell is a square of 1 / ``per_unit[pass]`` on that plane."""
     inv = 1.0 / voxel
     for r in prange(points.shape[0]):
         px, py, pz = points[r, 0], points[r, 1], points[r, 2]
-        if math.isfinite(px) and math.isfinite(py) and math.isfinite(pz):
-            keys[r] = _key(
-                math.floor((px - lo[0]) * inv),
-                math.floor((py - lo[1]) * inv),
-                math.floor((pz - lo[2]) * inv),
-            )
-        else:
+        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
             keys[r] = -1
+            continue
+        key = _key(
+            math.floor((px - lo[0]) * inv),
+            math.floor((py - lo[1]) * inv),
+            math.floor((pz - lo[2]) * inv),
+        )
+        keys[r] = key
+        if discretize:
+            fx, fy, fz = _centre(key)
+            px, py, pz = lo[0] + fx * voxel, lo[1] + fy * voxel, lo[2] + fz * voxel
+        dx, dy, dz = px - origin[0], py - origin[1], pz - origin[2]
+        dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+        c = dx * basis[0, 0] + dy * basis[0, 1] + dz * basis[0, 2]
+        u = v = -1.0
+        if c > 0.25 * dist:
+            u = (dx * basis[1, 0] + dy * basis[1, 1] + dz * basis[1, 2]) / c + span
+            v = (dx * basis[2, 0] + dy * basis[2, 1] + dz * basis[2, 2]) / c + span
+        if 0.0 <= u < 2 * span and 0.0 <= v < 2 * span:
+            for k in range(per_unit.shape[0]):
+                cells[r, k] = grid_off[k] + int(u * per_unit[k]) * grid_w[k] + int(v * per_unit[k])
+        elif per_unit.shape[0]:
+            cells[r, 0] = -1
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -189,15 +205,25 @@ def _key(cx, cy, cz):
     return (kx << 42) | (ky << 21) | kz
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _centre(key):
+    """The centre of the voxel ``key`` (``_key``), in voxels from the map's corner."""
+    fx = ((key >> 42) - (1 << 20)) + 0.5
+    fy = (((key >> 21) & ((1 << 21) - 1)) - (1 << 20)) + 0.5
+    fz = ((key & ((1 << 21) - 1)) - (1 << 20)) + 0.5
+    return fx, fy, fz
+
+
 @njit(cache=True, nogil=True)
 def _hits(
-    visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, keys, max_range, discretize,
-    seen, basis, per_unit, grids, grid_off, grid_w, span, scratch, rays, starts,
+    visited, hit, dirty, nx, ny, nz, lo, voxel, origin, points, keys, cells, max_range,
+    discretize, seen, grids, scratch, rays, starts,
 ):  # fmt: skip
     """First pass, one thread: set the hit and visited bits of the voxel of every return
     within range inside the map, and list the rays to cast in ``rays``, pass by pass (ray
     ``i`` of pass ``k`` at ``starts[k] + i``; ``starts`` gets the passes' bounds; see
-    ``_level``); returns their number. With ``discretize`` every point is first moved to the
+    ``_claim``); returns their number. ``keys`` and ``cells``: the points' voxels and
+    direction cells (``_cells``). With ``discretize`` every point is first moved to the
     centre of its voxel and one ray is cast per voxel (OctoMap's ``discretize``); the points
     outside the map are merged too, and those beyond range by the voxel of their cut, both
     through ``seen``, a direct-mapped cache of voxel keys, which may let a repeat through,
@@ -206,22 +232,20 @@ def _hits(
     by, bz = (ny + 7) >> 3, (nz + 7) >> 3
     inv = 1.0 / voxel
     mask = seen.shape[0] - 1
-    levels = per_unit.shape[0] + 1
+    levels = cells.shape[1] + 1
     count = np.zeros(levels, np.int64)
     level = np.empty(points.shape[0], np.int8)
     n = 0
     last = -2
     for r in range(points.shape[0]):
-        key = keys[r]  # the point's voxel (``_cells``)
+        key = keys[r]
         if key == -1:
             continue
         if discretize:
             if key == last:
                 continue  # the previous point's voxel (neighbouring pixels): its ray is cast
             last = key
-            fx = ((key >> 42) - (1 << 20)) + 0.5
-            fy = (((key >> 21) & ((1 << 21) - 1)) - (1 << 20)) + 0.5
-            fz = ((key & ((1 << 21) - 1)) - (1 << 20)) + 0.5
+            fx, fy, fz = _centre(key)
             px, py, pz = lo[0] + fx * voxel, lo[1] + fy * voxel, lo[2] + fz * voxel
         else:
             px, py, pz = points[r, 0], points[r, 1], points[r, 2]
@@ -250,7 +274,7 @@ def _hits(
             if seen[slot] == key:
                 continue
             seen[slot] = key
-        k = _level(dx, dy, dz, dist, basis, per_unit, grids, grid_off, grid_w, span)
+        k = _claim(cells[r], grids)
         level[n] = k
         count[k] += 1
         scratch[n, 0], scratch[n, 1], scratch[n, 2] = px, py, pz
@@ -558,18 +582,30 @@ def _walk_threads(pool: int) -> int:
     return min(pool, WALK_THREADS)
 
 
-def _basis(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
-    """Rows: the scan's mean direction (of a sample of its points) and two axes across it."""
-    d = points[:: max(1, len(points) // 2000)] - origin
-    d = d[np.all(np.isfinite(d), axis=1)]
-    norms = np.linalg.norm(d, axis=1)
-    mean = (d[norms > 1e-9] / norms[norms > 1e-9, None]).sum(axis=0)
-    if not np.linalg.norm(mean) > 1e-9:
-        mean = np.array([1.0, 0.0, 0.0])
-    e0 = mean / np.linalg.norm(mean)
-    e1 = np.cross(e0, [0.0, 0.0, 1.0] if abs(e0[2]) < 0.9 else [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    return np.array([e0, e1, np.cross(e0, e1)])
+@njit(cache=True, nogil=True)
+def _basis(points, origin):
+    """Rows: the scan's mean direction (of a sample of about 2000 of its points) and two axes
+    across it."""
+    step = max(1, points.shape[0] // 2000)
+    mean = np.zeros(3)
+    for r in range(0, points.shape[0], step):
+        dx, dy, dz = points[r, 0] - origin[0], points[r, 1] - origin[1], points[r, 2] - origin[2]
+        norm = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if math.isfinite(norm) and norm > 1e-9:
+            mean[0] += dx / norm
+            mean[1] += dy / norm
+            mean[2] += dz / norm
+    norm = math.sqrt(mean[0] * mean[0] + mean[1] * mean[1] + mean[2] * mean[2])
+    if not norm > 1e-9:
+        mean[:] = (1.0, 0.0, 0.0)
+        norm = 1.0
+    e0 = mean / norm
+    up = np.array([0.0, 0.0, 1.0]) if abs(e0[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    e1 = np.cross(e0, up)
+    e1 /= math.sqrt(e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2])
+    out = np.empty((3, 3))
+    out[0], out[1], out[2] = e0, e1, np.cross(e0, e1)
+    return out
 
 
 class OccupancyMap:
@@ -606,6 +642,7 @@ class OccupancyMap:
         self._saturated = np.zeros(blocks, np.uint8)
         self._rays = np.zeros((0, 3), np.float64)
         self._keys = np.zeros(0, np.int64)
+        self._dir_cells = np.zeros((0, 0), np.int32)
         self._ray_scratch = np.zeros((0, 3), np.float64)
         self._seen = np.full(SEEN_SLOTS, -1, np.int64)
         v = self.config.voxel
@@ -696,12 +733,15 @@ class OccupancyMap:
         self._grids.fill(0)
         if len(self._keys) < len(points):
             self._keys = np.empty(len(points), np.int64)
-        keys = self._keys[: len(points)]
-        _cells(points, self.lo, self.voxel, keys)
+            self._dir_cells = np.empty((len(points), len(self._per_unit)), np.int32)
+        keys, cells = self._keys[: len(points)], self._dir_cells[: len(points)]
+        _cells(
+            points, self.lo, self.voxel, origin, self.config.discretize, _basis(points, origin),
+            self._per_unit, self._grid_off, self._grid_w, PASS_SPAN, keys, cells,
+        )  # fmt: skip
         self.rays = _hits(
-            *grid, points, keys, max_range, self.config.discretize, self._seen,
-            _basis(points, origin), self._per_unit, self._grids, self._grid_off, self._grid_w,
-            PASS_SPAN, self._ray_scratch, self._rays, starts,
+            *grid, points, keys, cells, max_range, self.config.discretize, self._seen,
+            self._grids, self._ray_scratch, self._rays, starts,
         )  # fmt: skip
         if pool > threads:
             numba.set_num_threads(threads)  # a thread's id must name a row of ``_visited``
