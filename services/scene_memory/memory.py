@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from schemas import CloudFrame, PointCloud, RgbdFrame, SceneModel, SceneObservation
+from services.scene_memory.cloud_merge import add_frame
 from services.scene_memory.fusion import Fusion, FusionConfig, Update, voxel_keys
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap
 from services.scene_memory.registration import (
@@ -171,30 +172,18 @@ class SceneMemory:
 
     def _add_to_cloud(self, pts: np.ndarray, rgb: np.ndarray, eye: np.ndarray) -> None:
         """Merge a frame's points into the registered cloud, one point per voxel of
-        ``cloud_voxel`` (a voxel's first point stays), the oldest dropped beyond MAX_CLOUD.
-        Only the frame's points are sorted: they are looked up in the cloud's sorted voxel keys
-        (``_cloud_index``), and the new ones inserted (re-sorting the whole cloud each frame
+        ``cloud_voxel`` (a voxel's first point stays), the oldest dropped beyond MAX_CLOUD
+        (``cloud_merge.add_frame``, one compiled call: the frame's points are sorted and merged with
+        the cloud's sorted voxel keys, ``_cloud_index``; re-sorting the whole cloud each frame
         cost 30 ms of a kitchen frame)."""
         viewpoints, index = self._viewpoints(), self._index()
-        keys = voxel_keys(pts, self.config.cloud_voxel)
-        unique, first = np.unique(keys, return_index=True)
-        at = np.searchsorted(index, unique)
-        known = np.zeros(len(unique), bool)
-        if len(index):
-            known = index[np.minimum(at, len(index) - 1)] == unique
-        index = np.insert(index, at[~known], unique[~known])
-        new = np.sort(first[~known])
-        self.cloud = np.concatenate([self.cloud, pts[new]])
-        self.colours = np.concatenate([self.colours, rgb[new]])
-        seen = np.broadcast_to(np.asarray(eye, np.float32), (len(new), 3))
-        self.viewpoints = np.concatenate([viewpoints, seen])
-        self._cloud_keys = np.concatenate([self._cloud_keys, keys[new]])
-        drop = len(self.cloud) - MAX_CLOUD
-        if drop > 0:
-            index = np.delete(index, np.searchsorted(index, self._cloud_keys[:drop]))
-            self.cloud, self.colours = self.cloud[drop:], self.colours[drop:]
-            self.viewpoints, self._cloud_keys = self.viewpoints[drop:], self._cloud_keys[drop:]
-        self._cloud_index = index
+        self.cloud, self.colours, self.viewpoints, self._cloud_keys, self._cloud_index = (
+            add_frame(
+                self.cloud, self.colours, viewpoints, self._cloud_keys, index,
+                np.asarray(pts, np.float32), np.asarray(rgb, np.uint8),
+                np.asarray(eye, np.float32), self.config.cloud_voxel, MAX_CLOUD,
+            )
+        )  # fmt: skip
 
     def _index(self) -> np.ndarray:
         """The sorted voxel keys of the cloud (and ``_cloud_keys``, the cloud point by point):

@@ -34,7 +34,7 @@ from schemas import (
 from services.common.frames import usable_depth_frame
 from services.common.node import Node
 from services.common.standby import wait_for_turn
-from services.scene_memory import fusion, occupancy
+from services.scene_memory import cloud_merge, fusion, occupancy
 from services.scene_memory.config import SceneMemorySettings
 from services.scene_memory.fusion import FusionConfig
 from services.scene_memory.memory import (
@@ -111,6 +111,7 @@ class SceneMemoryNode:
             raise SystemExit(0)  # stopped while standing by
         occupancy.warm_up()  # the kernels before the first frame, not with it
         fusion.warm_up()
+        cloud_merge.warm_up()
         if settings.registration:
             warm_up()
         self.store = Store(settings.data_dir)

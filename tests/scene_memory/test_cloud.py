@@ -5,6 +5,7 @@ gives exactly what re-deduplicating the whole cloud every frame gave."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from services.scene_memory import memory as memory_module
 from services.scene_memory.fusion import voxel_keys
@@ -28,8 +29,9 @@ def _reference(frames, cap: int):
     return cloud, colours, seen
 
 
-def test_incremental_cloud_equals_whole_cloud_dedup(monkeypatch):
-    monkeypatch.setattr(memory_module, "MAX_CLOUD", 6000)
+@pytest.mark.parametrize("cap", [6000, 1000])  # 1000: a frame alone is past the cap
+def test_incremental_cloud_equals_whole_cloud_dedup(monkeypatch, cap):
+    monkeypatch.setattr(memory_module, "MAX_CLOUD", cap)
     rng = np.random.default_rng(7)
     frames = []
     for i in range(12):  # overlapping 0.3 m boxes drifting along x, 1500 points each
@@ -41,8 +43,8 @@ def test_incremental_cloud_equals_whole_cloud_dedup(monkeypatch):
         if k == 5:  # a snapshot between frames: the voxel keys are rebuilt after it
             m = load(dump(m, 6))[0]
             assert m._cloud_keys is None
-        cloud, colours, seen = _reference(frames[: k + 1], 6000)
+        cloud, colours, seen = _reference(frames[: k + 1], cap)
         assert np.array_equal(m.cloud, cloud) and np.array_equal(m.colours, colours), k
         assert np.array_equal(m.viewpoints, seen), k
-    assert len(m.cloud) == 6000  # the cap was reached and the oldest points went
+    assert len(m.cloud) == cap  # the cap was reached and the oldest points went
     assert np.array_equal(np.sort(voxel_keys(m.cloud, 0.01)), m._cloud_index)
