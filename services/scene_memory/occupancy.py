@@ -20,7 +20,6 @@ dense array: 4 m × 4 m × 2 m at 1 cm is 32 M voxels, 64 MB, kept in 8×8×8 bl
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 
@@ -609,6 +608,80 @@ def _apply(
     return counts[:, 0].sum(), counts[:, 1].sum()
 
 
+@njit(cache=True, nogil=True)
+def _integrate(
+    values, shape, visited, hit, cleared, known_bits, saturated, dirty, lo, voxel, origin,
+    points, keys, cells, max_range, discretize, seen, grids, per_unit, grid_off, grid_w,
+    scratch, rays, milli, index, threads, walk,
+):  # fmt: skip
+    """``OccupancyMap.integrate`` in one call (numba's pool set to ``threads``, the walking
+    threads, rows of ``visited``): its serial kernels called one by one from Python took the
+    GIL back a dozen times a frame, each time waiting up to the interpreter's switch interval
+    while another thread of the process held it (numba's parallel regions still take it twice
+    each: ``benchmarks/gil_waits.py``). ``walk``: (PATIENCE, PATIENCE_REST, SUBPASSES,
+    SMALL_PASS, SERIAL_RAYS), read when called. Returns (rays cast, voxels updated, of them
+    unknown before inside the index box ``index``)."""
+    nx, ny, nz = shape
+    seen[:] = -1
+    grids[:] = 0
+    starts = np.zeros(per_unit.shape[0] + 2, np.int64)
+    _cells(
+        points, lo, voxel, origin, discretize, _basis(points, origin), per_unit, grid_off,
+        grid_w, PASS_SPAN, keys, cells,
+    )  # fmt: skip
+    n = _hits(
+        visited[0], hit, dirty, nx, ny, nz, lo, voxel, origin, points, keys, cells, max_range,
+        discretize, seen, grids, scratch, rays, starts,
+    )  # fmt: skip
+    _walk_passes(
+        visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, rays, starts,
+        max_range, threads, walk,
+    )  # fmt: skip
+    blocks = np.flatnonzero(dirty)
+    dirty[:] = 0
+    count, known = _apply(
+        values, shape, visited, hit, cleared, known_bits, saturated, blocks, milli[0], milli[1],
+        milli[2], milli[3], index,
+    )  # fmt: skip
+    return n, count, known
+
+
+@njit(cache=True, nogil=True)
+def _walk_passes(
+    visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, rays, starts, max_range,
+    threads, walk,
+):  # fmt: skip
+    """Walk the rays of every pass (``starts``: their bounds in ``rays``, ``_hits``), in
+    order, each pass's in rounds (``_integrate``'s ``walk``)."""
+    patience, patience_rest, subpasses, small_pass, serial_rays = walk
+    last = starts.shape[0] - 2
+    for k in range(starts.shape[0] - 1):
+        a, b = starts[k], starts[k + 1]
+        if b <= a:
+            continue
+        # the first pass walks whole rays: nothing is cleared before it; the last one's rays
+        # each run beside one cast already, a finest cell away
+        p = 0 if k == 0 else patience_rest if k == last else patience
+        # in rounds (every subpasses-th ray), each stopping on what the ones before it cleared;
+        # a small pass at once and on this thread (no wake-ups)
+        step = subpasses if p and b - a >= subpasses * small_pass else 1
+        for i in range(step):
+            if p:
+                _snapshot(visited, cleared, dirty)
+            sub = rays[a + i : b : step]
+            if sub.shape[0] < serial_rays:
+                _free_serial(
+                    visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, sub,
+                    max_range, p,
+                )  # fmt: skip
+            else:
+                chunks = max(1, min(threads * 32, sub.shape[0] // 64 + 1))
+                _free(
+                    visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, sub,
+                    max_range, chunks, p,
+                )  # fmt: skip
+
+
 def _walk_threads(pool: int) -> int:
     """The threads that walk the rays, of a numba pool of ``pool``: a row of ``_visited`` each."""
     return min(pool, WALK_THREADS)
@@ -759,63 +832,28 @@ class OccupancyMap:
         threads = _walk_threads(pool)
         if len(self._visited) < threads:  # more threads than when the map was made
             self._visited = np.zeros((threads, self._visited.shape[1]), np.uint8)
-        grid = (self._visited[0], self._hit, self._dirty, nx, ny, nz, self.lo, self.voxel, origin)
-        starts = np.zeros(len(self._per_unit) + 2, np.int64)
-        self._seen.fill(-1)
-        self._grids.fill(0)
         if len(self._keys) < len(points):
             self._keys = np.empty(len(points), np.int64)
             self._dir_cells = np.empty((len(points), len(self._per_unit)), np.int32)
-        keys, cells = self._keys[: len(points)], self._dir_cells[: len(points)]
-        _cells(
-            points, self.lo, self.voxel, origin, self.config.discretize, _basis(points, origin),
-            self._per_unit, self._grid_off, self._grid_w, PASS_SPAN, keys, cells,
-        )  # fmt: skip
-        self.rays = _hits(
-            *grid, points, keys, cells, max_range, self.config.discretize, self._seen,
-            self._grids, self._ray_scratch, self._rays, starts,
-        )  # fmt: skip
+        index = np.array(self._index_box(*box) if box is not None else (0, 0, 0, nx, ny, nz),
+                         np.int64)  # fmt: skip
         if pool > threads:
             numba.set_num_threads(threads)  # a thread's id must name a row of ``_visited``
         try:
-            self._walk_passes(starts, grid, max_range, threads)
+            self.rays, count, known = _integrate(
+                self.values, self.shape, self._visited, self._hit, self._cleared, self._known_bits,
+                self._saturated, self._dirty, self.lo, self.voxel, origin, points,
+                self._keys[: len(points)], self._dir_cells[: len(points)], max_range,
+                self.config.discretize, self._seen, self._grids, self._per_unit, self._grid_off,
+                self._grid_w, self._ray_scratch, self._rays, self._milli, index, threads,
+                (PATIENCE, PATIENCE_REST, SUBPASSES, SMALL_PASS, SERIAL_RAYS),
+            )  # fmt: skip
         finally:
             numba.set_num_threads(pool)
-        blocks = np.flatnonzero(self._dirty)
-        self._dirty[blocks] = 0
-        index = np.array(self._index_box(*box) if box is not None else (0, 0, 0, nx, ny, nz),
-                         np.int64)  # fmt: skip
-        count, known = _apply(
-            self.values, self.shape, self._visited, self._hit, self._cleared, self._known_bits,
-            self._saturated, blocks, *self._milli, index,
-        )  # fmt: skip
         self.made_known = int(known)
         self.frames += 1
         self.version += 1
         return int(count)
-
-    def _walk_passes(self, starts: np.ndarray, grid: tuple, max_range: float, threads: int) -> None:
-        """Walk the rays of every pass (``starts``: their bounds in ``_rays``, ``_hits``), in
-        order, each pass's in rounds."""
-        last = len(starts) - 2
-        for k, (a, b) in enumerate(itertools.pairwise(starts)):
-            if b > a:
-                # the first pass walks whole rays: nothing is cleared before it; the last
-                # one's rays each run beside one cast already, a finest cell away
-                patience = 0 if k == 0 else PATIENCE_REST if k == last else PATIENCE
-                walk = (self._visited, self._cleared, self._saturated, *grid[2:])
-                # in rounds (every SUBPASSES-th ray), each stopping on what the ones before
-                # it cleared; a small pass at once and on this thread (no wake-ups)
-                step = SUBPASSES if patience and b - a >= SUBPASSES * SMALL_PASS else 1
-                for i in range(step):
-                    if patience:
-                        _snapshot(self._visited, self._cleared, self._dirty)
-                    rays = self._rays[a + i : b : step]
-                    if len(rays) < SERIAL_RAYS:
-                        _free_serial(*walk, rays, max_range, patience)
-                    else:
-                        chunks = max(1, min(threads * 32, len(rays) // 64 + 1))
-                        _free(*walk, rays, max_range, chunks, patience)
 
     def integrate_depth(
         self,
