@@ -345,6 +345,23 @@ def test_a_service_stops_on_ctrl_c_under_avs_up(router, procs):
     assert hung == 0, f"{hung} of 10 nodes did not stop"
 
 
+@pytest.mark.parametrize(("env", "ms"), [({}, 0.5), ({"AVS_SWITCH_INTERVAL_MS": "2"}, 2.0)])
+def test_a_service_sets_the_interpreters_switch_interval(router, procs, env, ms):
+    """Every service shortens CPython's switch interval (5 ms) to ``switch_interval_ms``: the
+    longest a thread waits for the GIL another one holds, which a frame step waits at every
+    compiled call and parallel region (benchmarks/gil_waits.py)."""
+    import subprocess
+
+    from tests.conftest import avs_env
+
+    p = procs.python(
+        [str(Path(__file__).parent / "procs" / "idle_node.py")],
+        env={**avs_env(router), **env}, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    assert p.stdout.readline().strip() == "up"
+    assert float(p.stdout.readline()) == pytest.approx(ms)
+
+
 def test_a_stopping_service_finishes_the_handler_in_flight(router, client, procs):
     """SIGTERM while a handler runs: the handler finishes before the service closes what it
     writes to. With the service closed first (as run_node did), its write met a closed file

@@ -186,6 +186,14 @@ class ServiceSettings(TransportSettings):
     )
     log_level: Literal["DEBUG", "INFO", "WARNING", "ERROR"] = Field("INFO", description="log level")
     log_format: Literal["text", "json"] = Field("text", description="log line format")
+    switch_interval_ms: float = Field(
+        0.5,
+        gt=0.0,
+        le=100.0,
+        description="CPython's thread switch interval (default 5 ms): how long a thread that "
+        "wants the GIL waits for one that holds it; a node's frame step waits for it at every "
+        "compiled call and parallel region (benchmarks/gil_waits.py)",
+    )
 
     @field_validator("instance")
     @classmethod

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -12,11 +13,13 @@ from services.common.node import Node
 
 
 def run_node(settings: ServiceSettings, build: Callable[[Node], Any]) -> int:
-    """Start a node for ``settings``, let ``build(node)`` declare the service's inputs and
-    outputs, and block until SIGINT/SIGTERM (or the service stops the node). Whatever ``build``
-    returns is closed (if it has ``close()``) once the node's inputs are stopped and their
-    handlers finished (``Node.stop_inputs``), and before its outputs and session go."""
+    """Start a node for ``settings`` (the interpreter's switch interval set first), let
+    ``build(node)`` declare the service's inputs and outputs, and block until SIGINT/SIGTERM
+    (or the service stops the node). Whatever ``build`` returns is closed (if it has
+    ``close()``) once the node's inputs are stopped and their handlers finished
+    (``Node.stop_inputs``), and before its outputs and session go."""
     service = type(settings).SERVICE
+    sys.setswitchinterval(settings.switch_interval_ms / 1e3)
     setup_logging(service, settings.instance, settings.log_level, settings.log_format)
     log = logging.getLogger(f"avs.{service}")
     log.debug("settings", extra={"settings": settings.model_dump(mode="json")})
