@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import sys
-import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -32,6 +31,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks._busy import busy_thread  # noqa: E402
 from benchmarks.occupancy import frame_points, pan  # noqa: E402
 from services.scene_memory.cloud_merge import add_frame  # noqa: E402
 from services.scene_memory.fusion import voxel_keys  # noqa: E402
@@ -94,26 +94,13 @@ class CompiledCloud(NumpyCloud):
 
 def run(kind: type, views: list, busy: bool) -> tuple[list[float], NumpyCloud]:
     """ms a frame of merging the pan into a fresh cloud (after it reached its cap)."""
-    stop = threading.Event()
-
-    def spin() -> None:
-        while not stop.is_set():
-            sum(range(200))
-
-    spinner = threading.Thread(target=spin, daemon=True)
-    if busy:
-        spinner.start()
     cloud, times = kind(), []
-    try:
+    with busy_thread("python" if busy else None):
         for pts, rgb, eye in views:
             t0 = time.perf_counter()
             cloud.add(pts, rgb, eye)
             if len(cloud.cloud) == MAX_CLOUD:
                 times.append((time.perf_counter() - t0) * 1e3)
-    finally:
-        stop.set()
-        if busy:
-            spinner.join()
     return times, cloud
 
 

@@ -25,73 +25,50 @@ from __future__ import annotations
 import argparse
 import multiprocessing
 import sys
-import threading
 import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.occupancy import frame_points, inputs  # noqa: E402
+from benchmarks._busy import busy_thread  # noqa: E402
+from benchmarks.occupancy import frame_points, kitchen_case  # noqa: E402
 from services.common.config import ServiceSettings  # noqa: E402
 from services.scene_memory.cloud_merge import add_frame  # noqa: E402
 from services.scene_memory.memory import MAX_CLOUD, MemoryConfig  # noqa: E402
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap  # noqa: E402
 
 
-@njit(nogil=True, cache=True)
-def _spin(n: int) -> float:
-    x = 0.0
-    for i in range(n):
-        x += np.sqrt(i)
-    return x
-
-
 def kitchen(frames: int) -> tuple[list, np.ndarray, np.ndarray]:
     """The kitchen pan's (points, eye) and its map's bounds."""
-    _, _, views, lo, hi = inputs(frames, 6.0)[-1]
+    _, _, views, lo, hi = kitchen_case(frames, 6.0)
     return [frame_points(f, 2) for f in views], lo, hi
 
 
 def run(views, lo, hi, repeats: int, busy: str | None, interval_s: float) -> float:
     """Median ms of a frame's integrate + cloud merge, ``busy``: None, "python", "compiled"."""
-    stop = threading.Event()
-
-    def spin() -> None:
-        while not stop.is_set():
-            if busy == "python":
-                sum(range(200))
-            else:
-                _spin(200_000)
-
     before = sys.getswitchinterval()
     sys.setswitchinterval(interval_s)
-    spinner = threading.Thread(target=spin, daemon=True)
-    if busy:
-        spinner.start()
     times = []
     try:
-        for _ in range(repeats):
-            m = OccupancyMap(lo, hi, OccupancyConfig(voxel=0.01, max_range=3.0))
-            points3 = np.zeros((0, 3), np.float32)
-            keys = np.zeros(0, np.int64)
-            cloud = (points3, np.zeros((0, 3), np.uint8), points3, keys, keys)
-            for i, (points, eye) in enumerate(views):
-                pts, rgb = points.astype(np.float32), np.zeros((len(points), 3), np.uint8)
-                t0 = time.perf_counter()
-                m.integrate(points, eye)
-                cloud = add_frame(*cloud, pts, rgb, eye.astype(np.float32),
-                                  MemoryConfig().cloud_voxel, MAX_CLOUD)  # fmt: skip
-                if i:  # the start view into the fresh map untimed
-                    times.append((time.perf_counter() - t0) * 1e3)
+        with busy_thread(busy):
+            for _ in range(repeats):
+                m = OccupancyMap(lo, hi, OccupancyConfig(voxel=0.01, max_range=3.0))
+                points3 = np.zeros((0, 3), np.float32)
+                keys = np.zeros(0, np.int64)
+                cloud = (points3, np.zeros((0, 3), np.uint8), points3, keys, keys)
+                for i, (points, eye) in enumerate(views):
+                    pts, rgb = points.astype(np.float32), np.zeros((len(points), 3), np.uint8)
+                    t0 = time.perf_counter()
+                    m.integrate(points, eye)
+                    cloud = add_frame(*cloud, pts, rgb, eye.astype(np.float32),
+                                      MemoryConfig().cloud_voxel, MAX_CLOUD)  # fmt: skip
+                    if i:  # the start view into the fresh map untimed
+                        times.append((time.perf_counter() - t0) * 1e3)
     finally:
-        stop.set()
-        if busy:
-            spinner.join()
         sys.setswitchinterval(before)
     return float(np.median(times))
 
@@ -104,7 +81,6 @@ def main() -> None:
     with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as child:
         views, lo, hi = child.submit(kitchen, args.frames).result()
     ours = ServiceSettings.model_fields["switch_interval_ms"].default / 1e3
-    _spin(10)
     run(views[:2], lo, hi, 1, None, 0.005)  # warm
     python = "beside a busy Python thread, switch interval"
     cases = [

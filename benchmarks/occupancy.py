@@ -176,7 +176,6 @@ def octomap(views, lo, hi, voxel) -> tuple[float, float, tuple[int, int, int]]:
 def inputs(frames: int, degrees: float) -> list[tuple]:
     """The cases' (name, voxel, frames, lo, hi), each stride taken later: the pans of both
     scenes and their maps' bounds."""
-    from avs.bounds import map_bounds
 
     world, views = pan("tabletop_clutter", frames, degrees)
     # the workspace around the table (the roi grown by 1 m, floor to 2 m)
@@ -184,8 +183,15 @@ def inputs(frames: int, degrees: float) -> list[tuple]:
     hi = np.ceil((world.info.roi[1] + 1.0) / 0.02) * 0.02
     lo[2], hi[2] = -0.04, 2.0
     cases = [("table-top", 0.01, views, lo, hi), ("table-top", 0.02, views, lo, hi)]
+    return [*cases, kitchen_case(frames, degrees)]
+
+
+def kitchen_case(frames: int, degrees: float) -> tuple:
+    """("kitchen", 0.01, its pan's frames, lo, hi): the live stack's kitchen map
+    (avs/explore.py's scene_facts) on the 2 cm grid."""
+    from avs.bounds import map_bounds
+
     world, views = pan("kitchen", frames, degrees)
-    # the live stack's kitchen map (avs/explore.py's scene_facts), on the 2 cm grid
     info = world.info
     pois = np.array([info.pois[k] for k in sorted(info.pois)]).reshape(-1, 3)
     lo, hi = map_bounds(
@@ -193,7 +199,7 @@ def inputs(frames: int, degrees: float) -> list[tuple]:
         footprint=world.robot.footprint_radius, workspace=info.workspace,
     )  # fmt: skip
     lo, hi = np.floor(lo / 0.02) * 0.02, np.ceil(hi / 0.02) * 0.02
-    return [*cases, ("kitchen", 0.01, views, lo, hi)]
+    return "kitchen", 0.01, views, lo, hi
 
 
 def main() -> None:
