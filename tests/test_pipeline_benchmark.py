@@ -1,11 +1,12 @@
 """benchmarks/pipeline.py's bookkeeping: sim stamps put on this process's clock, a frame's
-fused time, and the per-frame latencies (the live run itself is the benchmark's to do)."""
+stages counted only where they happened, the per-frame latencies and the
+environment avs up gets (the live run itself is the benchmark's to do)."""
 
 from __future__ import annotations
 
 import pytest
 
-from benchmarks.pipeline import Frame, SimClock, latencies
+from benchmarks.pipeline import Frame, SimClock, latencies, user_environment
 
 
 def test_a_sim_stamp_is_mapped_by_the_quickest_status_sample_near_it():
@@ -19,11 +20,26 @@ def test_a_sim_stamp_is_mapped_by_the_quickest_status_sample_near_it():
     assert SimClock().to_monotonic(1.0) is None
 
 
-def test_a_frame_is_fused_once_its_depth_is_in_the_map_and_its_observation_in_the_model():
-    assert Frame(1, 0.0, observation=1.0, model=1.3).fused() is None  # not in the map
-    assert Frame(2, 0.0, map=1.1).fused() == 1.1  # not observed: the map alone
-    assert Frame(3, 0.0, observation=1.0, model=1.3, map=1.1).fused() == 1.3
-    assert Frame(4, 0.0, observation=1.0, map=1.1).fused() == 1.1  # observation not fused
+def test_each_stage_counts_only_where_it_happened():
+    """A frame mapped but never modelled is mapped, not semantic; one whose observation is in
+    the model but whose depth the map never took is semantic, not mapped; an observation that
+    never reached the model is neither."""
+    clock = SimClock()
+    clock.add(0.0, 50.0, 50.0)
+    frames = [
+        Frame(1, 1.0, observation=51.1, semantic=51.2, map=51.15),  # both
+        Frame(2, 1.1, map=51.3),  # mapped, never observed
+        Frame(3, 1.2, observation=51.3, map=51.25),  # observed and mapped, the model dropped it
+        Frame(4, 1.3, observation=51.4, semantic=51.45),  # semantic, the map never took it
+        Frame(5, 1.4, observation=51.5),  # observed only
+    ]
+    rows, per = latencies(frames, clock, 51.0, 52.0)
+    assert [r["seq"] for r in rows] == [1, 2, 3, 4, 5]
+    assert len(per["semantic"]) == 2 and len(per["map"]) == 3 and len(per["observation"]) == 4
+    assert [r["semantic"] is not None for r in rows] == [True, False, False, True, False]
+    assert [r["map"] is not None for r in rows] == [True, True, True, False, False]
+    assert per["semantic"] == pytest.approx([200.0, 150.0])
+    assert per["map"] == pytest.approx([150.0, 200.0, 50.0])
 
 
 def test_latencies_per_frame_and_stage_within_the_run():
@@ -31,13 +47,24 @@ def test_latencies_per_frame_and_stage_within_the_run():
     clock.add(0.0, 50.0, 50.0)  # sim 0 is monotonic 50
     frames = [
         Frame(0, 0.5, observation=50.6),  # captured before the run: left out
-        Frame(1, 1.0, observation=51.05, model=51.2, map=51.15),
+        Frame(1, 1.0, observation=51.05, semantic=51.2, map=51.15),
         Frame(2, 1.2, map=51.3),
         Frame(3, 3.0, observation=53.1),  # captured after it: left out
     ]
     rows, per = latencies(frames, clock, 51.0, 52.0)
     assert [r["seq"] for r in rows] == [1, 2]
     assert rows[0]["observation"] == pytest.approx(50.0)
-    assert rows[0]["fused"] == pytest.approx(200.0)
-    assert rows[1]["observation"] is None and rows[1]["fused"] == pytest.approx(100.0)
-    assert len(per["fused"]) == 2 and len(per["model"]) == 1
+    assert rows[0]["semantic"] == pytest.approx(200.0)
+    assert rows[0]["map"] == pytest.approx(150.0)
+    assert rows[1]["observation"] is None and rows[1]["semantic"] is None
+    assert rows[1]["map"] == pytest.approx(100.0)
+    assert len(per["semantic"]) == 1 and len(per["map"]) == 2
+
+
+def test_the_stack_starts_as_a_user_starts_it(monkeypatch):
+    """No AVS_* setting of the benchmark's own environment reaches avs up."""
+    monkeypatch.setenv("AVS_PERCEPTION_MAX_RATE", "0")
+    monkeypatch.setenv("AVS_SIM_FPS", "5")
+    env = user_environment()
+    assert not [k for k in env if k.startswith("AVS_")]
+    assert env["MUJOCO_GL"]

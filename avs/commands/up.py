@@ -81,6 +81,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"restart a service silent this long (default {HUNG_AFTER_S:.0f} s)",
     )
     parser.add_argument(
+        "--scene", default=None, metavar="S",
+        help="the sim's scene: a built-in name or an MJCF file (default: the sim's, "
+        "tabletop_occluded; overrides AVS_SIM_SCENE)",
+    )  # fmt: skip
+    parser.add_argument(
         "--noise", choices=["on", "off"], default="on",
         help="the sim's sensor models (depth noise, gyro, encoders, latency, odometry drift) "
         "and the scene memory's view registration, or the simulator's truth (AVS_SIM_NOISE, "
@@ -123,7 +128,13 @@ def service_env(args: argparse.Namespace) -> dict[str, str]:
     # leave on 2 cores, which the map needs to keep up with the camera (issue 18's pipeline
     # benchmark); AVS_PERCEPTION_MAX_RATE=0 in the environment: every frame
     rate = {} if "AVS_PERCEPTION_MAX_RATE" in os.environ else {"AVS_PERCEPTION_MAX_RATE": "2"}
-    return noise | rate | {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
+    scene = {"AVS_SIM_SCENE": args.scene} if getattr(args, "scene", None) else {}
+    return (
+        noise
+        | rate
+        | scene
+        | {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
+    )
 
 
 def chosen_services(names: str) -> list[ServiceInfo]:
