@@ -28,6 +28,7 @@ roi) and counts its edges into occ(e).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -47,7 +48,7 @@ from schemas import (
     SupportEdge,
 )
 from services.common import sat
-from services.common.sat import boxes_overlap, pairs_overlap
+from services.common.sat import boxes_overlap, overlap, pairs_overlap
 
 MAX_POINTS = 6000  # points a memory primitive keeps (voxel-downsampled)
 BOX_GROWTH = 0.01  # m: points this far beyond a box's face make it grow
@@ -133,6 +134,66 @@ def inlier(points: np.ndarray, obb: Obb, margin: float) -> float:
 def obbs_intersect(a: Obb, b: Obb, epsilon: float = 0.0) -> bool:
     """Separating-axis test of two OBBs, each grown by ``epsilon``."""
     return boxes_overlap(a.rotation, a.center, a.extent, b.rotation, b.center, b.extent, epsilon)
+
+
+class _Boxes:
+    """The OBBs of one fusion step as the separating-axis kernel takes them, each converted
+    once (an observation against a 200-primitive kitchen model asks ~2000 pairs, and
+    converting both boxes per pair cost more than the test), and a bounding-sphere test first:
+    boxes whose spheres (grown like the boxes) are apart cannot overlap, and most pairs are
+    such. The same answers as ``obbs_intersect``."""
+
+    def __init__(self) -> None:
+        # id(obb) → (obb, R, centre, half extents, centre as floats, half extents as floats);
+        # the obb is kept so that its id is not reused while the entry lives
+        self._cache: dict[int, tuple] = {}
+
+    def _of(self, obb: Obb) -> tuple:
+        g = self._cache.get(id(obb))
+        if g is None or g[0] is not obb:
+            c = np.array(obb.center, np.float64)
+            h = np.asarray(obb.extent, np.float64) / 2
+            g = (obb, np.array(obb.rotation, np.float64, order="C"), c, h,
+                 tuple(c.tolist()), tuple(h.tolist()))  # fmt: skip
+            self._cache[id(obb)] = g
+        return g
+
+    def intersect(self, a: Obb, b: Obb, epsilon: float = 0.0) -> bool:
+        """``obbs_intersect(a, b, epsilon)``."""
+        _, Ra, ca, ha, (ax, ay, az), (hax, hay, haz) = self._of(a)
+        _, Rb, cb, hb, (bx, by, bz), (hbx, hby, hbz) = self._of(b)
+        reach = math.hypot(hax + epsilon, hay + epsilon, haz + epsilon) + math.hypot(
+            hbx + epsilon, hby + epsilon, hbz + epsilon
+        )
+        if (ax - bx) ** 2 + (ay - by) ** 2 + (az - bz) ** 2 > reach * reach * (1 + 1e-9):
+            return False
+        return bool(overlap(Ra, ca, ha + epsilon, Rb, cb, hb + epsilon))
+
+
+class _Shapes:
+    """``Fusion._level_area`` and ``_z_range`` of each OBB asked, computed once while the
+    scene model is built (its support edges and stability ask them per edge, hundreds of
+    times in a kitchen)."""
+
+    def __init__(self) -> None:
+        self._level: dict[int, tuple[Obb, float]] = {}
+        self._z: dict[int, tuple[Obb, tuple[float, float]]] = {}
+
+    def level_area(self, p: Primitive) -> float:
+        hit = self._level.get(id(p.obb))
+        if hit is None or hit[0] is not p.obb:
+            hit = self._level[id(p.obb)] = (p.obb, Fusion._level_area(p))
+        return hit[1]
+
+    def z_range(self, obb: Obb) -> tuple[float, float]:
+        hit = self._z.get(id(obb))
+        if hit is None or hit[0] is not obb:
+            hit = self._z[id(obb)] = (obb, _z_range(obb))
+        return hit[1]
+
+
+#: the corners and the centre of a unit box, in its own axes (in_frustum's test points)
+_SIGNS = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)] + [[0, 0, 0]])
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
@@ -292,12 +353,12 @@ def _z_range(obb: Obb) -> tuple[float, float]:
     return float(obb.center[2]) - reach, float(obb.center[2]) + reach
 
 
-def _under(p: Primitive, grounds: list[Primitive], tolerance: float) -> bool:
+def _under(p: Primitive, grounds: list[Primitive], tolerance: float, z_range=_z_range) -> bool:
     """Is ``p`` part of the furniture below a ground surface: its top not above the
     surface's (plus ``tolerance``), its centre inside the surface's footprint?"""
-    top = _z_range(p.obb)[1]
+    top = z_range(p.obb)[1]
     for g in grounds:
-        if g is p or top > _z_range(g.obb)[1] + tolerance:
+        if g is p or top > z_range(g.obb)[1] + tolerance:
             continue
         local = (p.obb.center - g.obb.center) @ g.obb.rotation
         k = int(np.argmax(np.abs(g.obb.rotation[2])))  # the surface's vertical axis
@@ -320,6 +381,24 @@ def in_frustum(obb: Obb, obs: SceneObservation) -> bool:
     return bool(np.any(ok & (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height)))
 
 
+def in_frustum_all(obbs: list[Obb], obs: SceneObservation) -> np.ndarray:
+    """``in_frustum`` of every box at once (bool per box)."""
+    if not obbs:
+        return np.zeros(0, bool)
+    K, T = obs.intrinsics, obs.T_world_camera
+    centres = np.array([o.center for o in obbs], np.float64)
+    rotations = np.array([o.rotation for o in obbs], np.float64)
+    extents = np.array([o.extent for o in obbs], np.float64)
+    local = _SIGNS[None] * extents[:, None] / 2  # (n, 9, 3)
+    pts = centres[:, None] + np.einsum("nkj,nij->nki", local, rotations)
+    cam = (pts - T[:3, 3]) @ T[:3, :3]
+    z = cam[..., 2]
+    ok = (z > 0.05) & (z < obs.depth_max + 0.5)
+    u = K.fx * cam[..., 0] / np.where(ok, z, 1) + K.cx
+    v = K.fy * cam[..., 1] / np.where(ok, z, 1) + K.cy
+    return np.any(ok & (u >= 0) & (u < K.width) & (v >= 0) & (v < K.height), axis=1)
+
+
 # -- the memory ---------------------------------------------------------------------------------
 
 
@@ -334,6 +413,20 @@ class Fusion:
         self.n_views = 0
         self.version = 0
         self.last = Update()
+        self._boxes = _Boxes()  # the boxes of the step under way (cleared at each update)
+        # memory id → (primitive, points, its message in the last scene model built)
+        self._messages: dict[int, tuple[Primitive, np.ndarray, Primitive]] = {}
+        self._edge_messages: dict[tuple[int, int], SpatialEdge] = {}  # … and its spatial edges
+
+    #: caches, rebuilt as needed: never in a snapshot
+    TRANSIENT = ("_boxes", "_messages", "_edge_messages")
+
+    def __getstate__(self) -> dict:
+        return {k: v for k, v in self.__dict__.items() if k not in self.TRANSIENT}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._boxes, self._messages, self._edge_messages = _Boxes(), {}, {}
 
     def _new_id(self) -> int:
         self.next_id += 1
@@ -359,19 +452,23 @@ class Fusion:
         the memory (Table 3.1: the graph extracted from the registered cloud is the model)."""
         c = self.config
         result = Update()
+        self._boxes = boxes = _Boxes()
         if c.mode == "pc" and whole:
             result.removed = len(self.prims)
             self.prims, self.occ = {}, {}
         if whole:
             visible = list(self.prims.values())
         else:
-            visible = [m for m in self.prims.values() if in_frustum(m.primitive.obb, obs)]
+            prims = list(self.prims.values())
+            seen = in_frustum_all([m.primitive.obb for m in prims], obs)
+            visible = [m for m, v in zip(prims, seen.tolist(), strict=True) if v]
         floor = self._floor_height(obs)
         if floor is not None:  # every floor piece takes part, seen now or not
+            taking_part = {m.id for m in visible}
             visible += [
                 m
                 for m in self.prims.values()
-                if m not in visible and _on_floor(m.primitive, floor, c)
+                if m.id not in taking_part and _on_floor(m.primitive, floor, c)
             ]
         for phi in obs.primitives:
             pts = phi.inliers.astype(np.float64)
@@ -392,7 +489,7 @@ class Fusion:
                     break
                 # pieces of a large plane join across small gaps
                 reach = c.plane_gap if _large_plane(phi, psi.primitive, c) else c.obb_margin
-                if not obbs_intersect(psi.primitive.obb, phi.obb, reach):
+                if not boxes.intersect(psi.primitive.obb, phi.obb, reach):
                     continue
                 kinds = {phi.model.kind, psi.primitive.model.kind}
                 if "plane" in kinds and len(kinds & SOLIDS) == 1:
@@ -490,7 +587,9 @@ class Fusion:
         c = self.config
         inside, things = set(), 0
         for m in candidates:
-            if m.id not in self.prims or not obbs_intersect(m.primitive.obb, p.obb, c.obb_margin):
+            if m.id not in self.prims or not self._boxes.intersect(
+                m.primitive.obb, p.obb, c.obb_margin
+            ):
                 continue
             if inlier(m.points, p.obb, c.obb_margin) < c.contained:
                 continue
@@ -522,7 +621,7 @@ class Fusion:
             for m in others.values():
                 if m.id == t or m.id not in self.prims or t not in self.prims:
                     continue
-                if not obbs_intersect(solid.primitive.obb, m.primitive.obb, c.obb_margin):
+                if not self._boxes.intersect(solid.primitive.obb, m.primitive.obb, c.obb_margin):
                     continue
                 share = inlier(m.points, solid.primitive.obb, c.obb_margin)
                 kind = m.primitive.model.kind
@@ -576,7 +675,7 @@ class Fusion:
 
     # -- the model as a message ---------------------------------------------------------------
 
-    def support(self) -> dict[tuple[int, int], int]:
+    def support(self, shapes: _Shapes | None = None) -> dict[tuple[int, int], int]:
         """The support edges with occ(e) that the fused geometry allows. A ground surface (a
         level surface of ``ground_area``: a table top) and what lies under it within its
         footprint (its legs, its edge's faces, a shelf below) rest only on ground (the
@@ -585,28 +684,30 @@ class Fusion:
         supporter's top (a box seen beside a shorter one, its lower part hidden by it,
         seemed to rest on it in that view)."""
         c = self.config
-        grounds = [
-            m.primitive
-            for m in self.prims.values()
-            if self._level_area(m.primitive) >= c.ground_area
-        ]
+        shapes = shapes or _Shapes()
+        level, z_range = shapes.level_area, shapes.z_range
+        grounds = [m.primitive for m in self.prims.values() if level(m.primitive) >= c.ground_area]
         out = {}
         for (a, b), n in self.occ.items():
             pa, pb = self.prims[a].primitive, self.prims[b].primitive
-            on_ground = self._level_area(pa) >= c.ground_area
+            on_ground = level(pa) >= c.ground_area
             if not on_ground and (
-                self._level_area(pb) >= c.ground_area or _under(pb, grounds, c.rest_tolerance)
+                level(pb) >= c.ground_area or _under(pb, grounds, c.rest_tolerance, z_range)
             ):
                 continue
-            if _z_range(pb.obb)[0] < _z_range(pa.obb)[1] - c.rest_tolerance:
+            if z_range(pb.obb)[0] < z_range(pa.obb)[1] - c.rest_tolerance:
                 continue
             out[a, b] = n
         return out
 
-    def unstable(self) -> tuple[int | None, list[int]]:
-        """ρ (the lowest primitive) and the primitives with no support chain to the ground."""
+    def unstable(
+        self, support: dict[tuple[int, int], int] | None = None, shapes: _Shapes | None = None
+    ) -> tuple[int | None, list[int]]:
+        """ρ (the lowest primitive) and the primitives with no support chain to the ground
+        (``support``: ``self.support()`` when already at hand)."""
         if not self.prims:
             return None, []
+        shapes = shapes or _Shapes()
         low = {
             i: m.primitive.obb.center[2]
             - np.abs(m.primitive.obb.rotation[2]) @ m.primitive.obb.extent / 2
@@ -616,10 +717,10 @@ class Fusion:
         ground = {root} | {
             i
             for i, m in self.prims.items()
-            if self._level_area(m.primitive) >= self.config.ground_area
+            if shapes.level_area(m.primitive) >= self.config.ground_area
         }
         supports: dict[int, list[int]] = {}
-        for a, b in self.support():
+        for a, b in support if support is not None else self.support(shapes):
             supports.setdefault(a, []).append(b)
         stable, queue = set(ground), deque(ground)
         while queue:
@@ -650,6 +751,16 @@ class Fusion:
         a, b = np.nonzero(np.triu(hit, 1))
         return [(ids[i], ids[j]) for i, j in zip(a.tolist(), b.tolist(), strict=True)]
 
+    def _spatial_messages(self) -> list[SpatialEdge]:
+        """``spatial_edges`` as messages, each pair's kept from the last model that had it
+        (a kitchen model has ~2000, and building each anew cost more than finding them)."""
+        last, edges = self._edge_messages, {}
+        for pair in self.spatial_edges():
+            e = last.get(pair)
+            edges[pair] = e if e is not None else SpatialEdge.model_construct(a=pair[0], b=pair[1])
+        self._edge_messages = edges
+        return list(edges.values())
+
     def scene_model(
         self,
         seq: int = 0,
@@ -659,18 +770,29 @@ class Fusion:
     ) -> SceneModel:
         """The fused scene; ``frame_seq`` / ``frame_stamp``: the frame whose observation was
         fused last (what a reader times the pipeline by)."""
-        root, unstable = self.unstable()
-        prims = []
+        shapes = _Shapes()
+        support = self.support(shapes)
+        root, unstable = self.unstable(support, shapes)
+        prims, messages = [], {}
         for i in sorted(self.prims):
             m = self.prims[i]
-            inliers = (
-                m.points
-                if len(m.points) <= 2000
-                else m.points[np.linspace(0, len(m.points) - 1, 2000).astype(int)]
-            )
-            prims.append(
-                m.primitive.model_copy(update={"id": i, "inliers": inliers.astype(np.float32)})
-            )
+            cached = self._messages.get(i)
+            if cached is not None and cached[0] is m.primitive and cached[1] is m.points:
+                message = cached[2]  # unchanged since the last model (primitive and points)
+            else:
+                inliers = (
+                    m.points
+                    if len(m.points) <= 2000
+                    else m.points[np.linspace(0, len(m.points) - 1, 2000).astype(int)]
+                )
+                message = m.primitive.model_copy(
+                    update={"id": i, "inliers": inliers.astype(np.float32)}
+                )
+            messages[i] = (m.primitive, m.points, message)
+            prims.append(message)
+        self._messages = messages
+        # (support edges: constructed, not validated one by one; the SceneModel checks that
+        # every edge's ends exist)
         return SceneModel(
             seq=seq,
             stamp=stamp,
@@ -678,10 +800,10 @@ class Fusion:
             n_views=self.n_views,
             fusion=self.config.mode,
             primitives=prims,
-            spatial_edges=[SpatialEdge(a=a, b=b) for a, b in self.spatial_edges()],
+            spatial_edges=self._spatial_messages(),
             support_edges=[
-                SupportEdge(supporter=a, supported=b, occ=n)
-                for (a, b), n in sorted(self.support().items())
+                SupportEdge.model_construct(supporter=a, supported=b, occ=n)
+                for (a, b), n in sorted(support.items())
             ],
             root_id=root,
             unstable_ids=unstable,

@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.scene_memory.fusion import Fusion, FusionConfig, inlier
+from schemas import Obb, encode
+from services.scene_memory import state
+from services.scene_memory.fusion import Fusion, FusionConfig, _Boxes, inlier, obbs_intersect
 from tests.scene_memory.builders import box, camera_above, cylinder, observation, plane
 
 FLOOR = dict(x=(-0.3, 2.1), y=(-1.0, 1.0), z=0.0)
@@ -175,3 +177,55 @@ def test_the_scene_model_names_the_frame_it_fused_last():
         memory.fuse(observation(seq, [plane(0, (0.5, 1.3), (-0.4, 0.4), 0.72)]))
     model = memory.scene(2, 2.0)
     assert (model.frame_seq, model.frame_stamp) == (7, 7.0)
+
+
+def test_the_step_s_box_test_answers_as_the_separating_axis_test_does():
+    """``_Boxes.intersect`` (a bounding-sphere test, then the kernel on boxes converted once)
+    against ``obbs_intersect`` on random boxes, many of them touching or just apart."""
+    rng = np.random.default_rng(3)
+    boxes = _Boxes()
+    disagree, hits = 0, 0
+    for _ in range(3000):
+        a, b = (
+            Obb(
+                center=rng.uniform(-0.5, 0.5, 3),
+                rotation=_rotation(rng),
+                extent=rng.uniform(0.01, 0.6, 3),
+            )
+            for _ in range(2)
+        )
+        for eps in (0.0, 0.01, 0.25):
+            expected = obbs_intersect(a, b, eps)
+            hits += expected
+            disagree += boxes.intersect(a, b, eps) != expected
+    assert disagree == 0 and 1000 < hits < 8000, hits
+
+
+def _rotation(rng: np.random.Generator) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    return q * np.sign(np.diag(r))
+
+
+def test_the_scene_model_s_caches_change_nothing_and_stay_out_of_snapshots():
+    """A primitive unchanged since the last model keeps its message; one merged into gets a
+    new one; the model equals a fresh fusion's; a snapshot holds no cache and restores a
+    fusion that builds the same model."""
+    near = box(1, (0.8, 0.0, 0.05), (0.1, 0.1, 0.1))
+    views = [[plane(0, **FLOOR), near, box(2, (1.4, 0.3, 0.05), (0.1, 0.1, 0.1))],
+             [plane(0, **FLOOR), near]]  # fmt: skip
+    fusion = Fusion()
+    fusion.update(observation(0, views[0]))
+    first = {p.id: p for p in fusion.scene_model().primitives}
+    fusion.update(observation(1, views[1]))
+    second = {p.id: p for p in fusion.scene_model().primitives}
+    far = next(i for i, p in second.items() if abs(p.obb.center[0] - 1.4) < 0.05)
+    assert second[far] is first[far]  # not seen again: the same message
+    assert sum(second[i] is not first[i] for i in second) >= 1  # the floor or box 1 merged
+    again = Fusion()
+    for i, v in enumerate(views):
+        again.update(observation(i, v))
+    assert encode(again.scene_model()) == encode(fusion.scene_model())
+    data = state.dump(fusion, 7)
+    restored, n = state.load(data)
+    assert n == 7 and not restored._messages and not restored._edge_messages
+    assert encode(restored.scene_model()) == encode(fusion.scene_model())
