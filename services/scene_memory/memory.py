@@ -246,6 +246,15 @@ class SceneMemory:
         self.T_world_odom = result.T_world_camera @ np.linalg.inv(T_odom)
         return result.T_world_camera, True
 
+    def registering(self, frame: RgbdFrame) -> bool:
+        """Whether integrating ``frame`` would register it (and so may move ``T_world_odom``):
+        registration on, a cloud to register against, and its time come."""
+        return (
+            self.config.registration is not None
+            and len(self.cloud) > 0
+            and self.registration_due(frame.stamp)
+        )
+
     def registration_due(self, stamp: float) -> bool:
         """Whether a frame captured at ``stamp`` is registered: ``registration_interval`` has
         passed since the last one was (or time went back: a reset sim)."""

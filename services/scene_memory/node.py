@@ -33,6 +33,7 @@ from schemas import (
 )
 from services.common.frames import usable_depth_frame
 from services.common.node import Node
+from services.common.realtime import FOREGROUND
 from services.common.standby import wait_for_turn
 from services.scene_memory import cloud_merge, fusion, occupancy
 from services.scene_memory.config import SceneMemorySettings
@@ -131,7 +132,7 @@ class SceneMemoryNode:
         # time); both at nice 0 beside rendering, after perception's worker (a frame is fused
         # once its depth is in the map: the map is on the pipeline's path, not deferrable)
         node.subscribe(k.observation(), SceneObservation, self.on_observation, queue=OBS_QUEUE,
-                       nice=0)  # fmt: skip
+                       nice=FOREGROUND)  # fmt: skip
         node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame, latest_only=True,
                        nice=0)  # fmt: skip
         node.serve(k.scene(), lambda _r: self.scene())
@@ -162,26 +163,39 @@ class SceneMemoryNode:
 
     @staticmethod
     def _apply(
-        memory: SceneMemory, kind: str, payload: bytes, registered: Callable[[], None] | None = None
+        memory: SceneMemory,
+        kind: str,
+        payload: bytes,
+        registered: Callable[[], None] | None = None,
+        message: RgbdFrame | SceneObservation | None = None,
     ) -> None:
+        """Apply a journal record; ``message``: its message, already decoded (live, where the
+        node has it: not decoded again from the bytes just journaled)."""
         if kind == "frame":
-            memory.integrate(decode(payload, RgbdFrame), registered)
+            memory.integrate(
+                message if message is not None else decode(payload, RgbdFrame), registered
+            )
         elif kind == "skip":
             memory.skip()
         elif kind == OBSERVATION_CORRECTED:
             obs, correction = unpack_observation(payload)
-            memory.fuse(decode(obs, SceneObservation), correction)
+            memory.fuse(
+                message if message is not None else decode(obs, SceneObservation), correction
+            )
         else:  # "observation": journaled before corrections were (the last one's then)
             memory.fuse(decode(payload, SceneObservation))
 
     def _update(self, kind: str, message) -> None:
         payload = encode(message) if message is not None else b""
         with self.map_lock:
-            if kind == "frame":
+            # observations of this frame or later wait for its registration only where it is
+            # registered (every registration_interval): otherwise the correction they take is
+            # the one in force already
+            if kind == "frame" and self.memory.registering(message):
                 with self.registered:
                     self.registering = message.seq
             try:
-                due = self._apply_update(kind, payload, self._registered)
+                due = self._apply_update(kind, payload, self._registered, message)
             finally:
                 self._registered()
         if due:
@@ -194,7 +208,11 @@ class SceneMemoryNode:
             self.registered.notify_all()
 
     def _apply_update(
-        self, kind: str, payload: bytes, registered: Callable[[], None] | None = None
+        self,
+        kind: str,
+        payload: bytes,
+        registered: Callable[[], None] | None = None,
+        message: RgbdFrame | SceneObservation | None = None,
     ) -> bool:
         """Journal and apply (the caller holds its side's lock); whether a snapshot is due
         (the caller takes it once it let its lock go: ``_snapshot``)."""
@@ -203,7 +221,7 @@ class SceneMemoryNode:
             n = self.n
             self.store.append(n, kind, payload)  # journaled before it is applied
         t0 = time.perf_counter()
-        self._apply(self.memory, kind, payload, registered)
+        self._apply(self.memory, kind, payload, registered, message)
         for key, value in dict(self.memory.timings_ms).items():
             self.node.metrics.gauge(key, value)
         s = self.settings
@@ -270,7 +288,7 @@ class SceneMemoryNode:
             # the correction the map's side has now (a reference read: it replaces the array,
             # never writes into it), journaled with the observation it moves
             payload = pack_observation(encode(obs), self.memory.T_world_odom)
-            due = self._apply_update(OBSERVATION_CORRECTED, payload)
+            due = self._apply_update(OBSERVATION_CORRECTED, payload, message=obs)
             scene = self.memory.scene(self.n, float(self.n))
         self.out_scene.put(scene)
         if due:

@@ -8,7 +8,15 @@ import numpy as np
 
 from schemas import Obb, encode
 from services.scene_memory import state
-from services.scene_memory.fusion import Fusion, FusionConfig, _Boxes, inlier, obbs_intersect
+from services.scene_memory.fusion import (
+    Fusion,
+    FusionConfig,
+    _Boxes,
+    first_of_each,
+    inlier,
+    obbs_intersect,
+    voxel_keys,
+)
 from tests.scene_memory.builders import box, camera_above, cylinder, observation, plane
 
 FLOOR = dict(x=(-0.3, 2.1), y=(-1.0, 1.0), z=0.0)
@@ -229,3 +237,16 @@ def test_the_scene_model_s_caches_change_nothing_and_stay_out_of_snapshots():
     restored, n = state.load(data)
     assert n == 7 and not restored._messages and not restored._edge_messages
     assert encode(restored.scene_model()) == encode(fusion.scene_model())
+
+
+def test_first_of_each_is_numpy_unique_s_first_indices():
+    """The merge's deduplication (a hash table) keeps what ``np.unique`` keeps: the first
+    point of each voxel, in order, on a level plane's keys (one axis constant: the keys'
+    low bits all alike), on random ones, with repeats, and on none."""
+    rng = np.random.default_rng(5)
+    level = rng.uniform(0, 2, (7000, 3)) * [1, 1, 0.001]
+    cases = [voxel_keys(level, 0.01), voxel_keys(rng.uniform(-3, 3, (5000, 3)), 0.01),
+             rng.integers(0, 50, 3000).astype(np.int64), np.zeros(0, np.int64)]  # fmt: skip
+    for keys in cases:
+        _, first = np.unique(keys, return_index=True)
+        assert np.array_equal(first_of_each(keys), np.sort(first))

@@ -10,7 +10,9 @@ import pytest
 
 from services.common.node import Node
 from services.scene_memory.config import SceneMemorySettings
+from services.scene_memory.memory import MemoryConfig, SceneMemory
 from services.scene_memory.node import SceneMemoryNode
+from services.scene_memory.registration import RegistrationConfig
 from tests.scene_memory.views import BOUNDS_MAX, BOUNDS_MIN, VOXEL
 
 
@@ -55,3 +57,25 @@ def test_an_observation_of_the_frame_in_registration_waits_for_its_correction(me
     # a newer frame in registration does not hold it up: its correction is not this one's
     memory.registering = obs.frame_seq + 1
     assert done_within(lambda: memory.on_observation(obs), 10)
+
+
+def test_only_a_frame_that_will_be_registered_holds_up_observations(updates):
+    """A frame makes observations of it (or later) wait for its correction only where it is
+    registered: registration on, a cloud to align to, its interval since the last one
+    passed. Every other frame leaves the correction as it is: nothing to wait for."""
+    frames = [m for kind, m in updates if kind == "frame"]
+    first, later = frames[0], frames[1]
+    box = {"bounds_min": BOUNDS_MIN, "bounds_max": BOUNDS_MAX}
+    off = SceneMemory(MemoryConfig(**box))
+    on = SceneMemory(
+        MemoryConfig(**box, registration=RegistrationConfig(), registration_interval=0.5)
+    )
+    assert not on.registering(first)  # nothing to align to yet: the first frame is the map
+    on.integrate(first)
+    off.integrate(first)
+    assert not off.registering(later)
+    assert on.registering(later)  # the first registration
+    on.integrate(later)
+    soon = later.model_copy(update={"seq": later.seq + 1, "stamp": later.stamp + 0.2})
+    due = later.model_copy(update={"seq": later.seq + 2, "stamp": later.stamp + 0.6})
+    assert not on.registering(soon) and on.registering(due)
