@@ -209,21 +209,23 @@ def encode_fields(cls: type[M], **values: Any) -> bytes:
     return b"".join(out)
 
 
-def peek(payload: bytes | bytearray | memoryview, *names: str, limit: int = 512) -> dict:
-    """The top-level fields ``names`` of a message read from its first ``limit`` bytes, without
-    decoding (or validating) the rest: a 2 MB frame's seq and camera in microseconds. Fields
-    not among the first few (or absent) are missing from the result."""
-    unpacker = msgpack.Unpacker(raw=False)
-    unpacker.feed(bytes(payload[:limit]))
+def peek(payload: bytes | bytearray | memoryview, *names: str, limit: int | None = 512) -> dict:
+    """The top-level fields ``names`` of a message read from its first ``limit`` bytes (None:
+    all of them), without decoding (or validating) the rest: other fields are skipped, not
+    built. A 2 MB frame's seq and camera in microseconds. Fields beyond ``limit`` (or absent)
+    are missing from the result."""
+    unpacker = msgpack.Unpacker(raw=False, max_buffer_size=max(len(payload), 1))
+    unpacker.feed(payload if limit is None else bytes(payload[:limit]))
     found: dict = {}
     try:
         for _ in range(unpacker.read_map_header()):
             key = unpacker.unpack()
-            value = unpacker.unpack()
-            if key in names:
-                found[key] = value
-                if len(found) == len(names):
-                    break
+            if key not in names:
+                unpacker.skip()
+                continue
+            found[key] = unpacker.unpack()
+            if len(found) == len(names):
+                break
     except (msgpack.OutOfData, ValueError, msgpack.ExtraData, msgpack.UnpackException):
         pass
     return found

@@ -199,3 +199,21 @@ def test_peek_reads_a_frames_header_without_decoding_it():
     assert peek(payload, "seq", "nothing") == {"seq": 7}  # what is not there is left out
     assert peek(b"\xc1 not msgpack", "seq") == {}
     assert peek(payload[:20], "camera", "seq") == {}  # cut before: nothing, no error
+
+
+def test_peek_of_the_whole_payload_reads_fields_after_large_arrays():
+    """``limit=None``: a field behind megabytes of arrays (a SceneModel's ``frame_seq`` after
+    its primitives) is read, the arrays skipped; a field of another value kind comes back
+    whole."""
+    import numpy as np
+
+    from schemas import CameraIntrinsics, RgbdFrame
+    from schemas.codec import peek
+
+    frame = RgbdFrame(seq=7, stamp=1.5, camera="head_rgbd",
+                      intrinsics=CameraIntrinsics.from_fov(640, 480, 45.0),
+                      depth=np.ones((480, 640), np.float32), T_world_camera=np.eye(4),
+                      joint_names=["a", "b"], joint_positions=np.zeros(2))  # fmt: skip
+    payload = encode(frame)
+    assert "joint_names" not in peek(payload, "joint_names")  # beyond the first 512 bytes
+    assert peek(payload, "joint_names", "seq", limit=None) == {"joint_names": ["a", "b"], "seq": 7}
