@@ -67,6 +67,26 @@ def test_every_service_reaches_the_router():
         assert "router" in service["depends_on"], name
 
 
+def test_every_service_runs_with_the_settings_avs_up_gives_it(monkeypatch):
+    """What ``avs up`` hands its services by default (the sensor models, view registration,
+    perception's rate) compose.yaml sets too: a deployment runs the system a user tried."""
+    import argparse
+
+    from avs.commands.up import service_env
+
+    for key in list(os.environ):
+        if key.startswith("AVS_"):
+            monkeypatch.delenv(key)
+    defaults = argparse.Namespace(noise="on", data_dir="avs-data", scene=None)
+    settings = {k: v for k, v in service_env(defaults).items() if not k.endswith("_DATA_DIR")}
+    owners = {"AVS_SIM_": "sim", "AVS_PERCEPTION_": "perception",
+              "AVS_SCENE_MEMORY_": "scene_memory"}  # fmt: skip
+    assert settings and all(any(k.startswith(p) for p in owners) for k in settings), settings
+    for key, value in settings.items():
+        service = next(name for prefix, name in owners.items() if key.startswith(prefix))
+        assert COMPOSE["services"][service]["environment"].get(key) == value, (service, key)
+
+
 def test_scalable_services_have_no_container_name():
     for name, service in _services().items():
         if BY_NAME[name].scalable:

@@ -28,6 +28,15 @@ from avs.services import BY_NAME, SERVICES, ServiceInfo, existing
 
 log = logging.getLogger("avs.up")
 
+#: frames perception takes a second in the live stack (the newest each time; compose.yaml
+#: sets the same): the semantic path (perception ~45 ms of CPU a frame, the fusion of its
+#: observation ~30 ms) takes a third of a core at this rate, at a higher priority than the
+#: map, which takes what is left of the core that rendering, physics and the 1 kHz gaze loop
+#: leave on 2 cores (benchmarks/pipeline.py: ≥ 5 semantic frames a second on the kitchen);
+#: uncapped, perception took 11 a second, which the fusion could not keep up with, and the
+#: semantic model fell seconds behind
+LIVE_PERCEPTION_RATE = 6.0
+
 
 def add_system_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
@@ -123,11 +132,13 @@ def service_env(args: argparse.Namespace) -> dict[str, str]:
     on = str(getattr(args, "noise", "on") == "on").lower()
     keys = ("AVS_SIM_NOISE", "AVS_SIM_SENSORS", "AVS_SCENE_MEMORY_REGISTRATION")
     noise = {k: on for k in keys if k not in os.environ}
-    # perception at most 2 frames a second: each observation costs perception 40-60 ms and its
-    # fusion 30-60 ms more of the 0.8 core that rendering, physics and the 1 kHz gaze loop
-    # leave on 2 cores, which the map needs to keep up with the camera (issue 18's pipeline
-    # benchmark); AVS_PERCEPTION_MAX_RATE=0 in the environment: every frame
-    rate = {} if "AVS_PERCEPTION_MAX_RATE" in os.environ else {"AVS_PERCEPTION_MAX_RATE": "2"}
+    # perception at most LIVE_PERCEPTION_RATE frames a second (AVS_PERCEPTION_MAX_RATE=0 in the
+    # environment: every frame)
+    rate = (
+        {}
+        if "AVS_PERCEPTION_MAX_RATE" in os.environ
+        else {"AVS_PERCEPTION_MAX_RATE": f"{LIVE_PERCEPTION_RATE:g}"}
+    )
     scene = {"AVS_SIM_SCENE": args.scene} if getattr(args, "scene", None) else {}
     return (
         noise
