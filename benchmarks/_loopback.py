@@ -3,6 +3,7 @@ client config for it (AVS's transport defaults, multicast off), stopping the pro
 
 from __future__ import annotations
 
+import os
 import socket
 import subprocess
 
@@ -30,3 +31,13 @@ def stop(procs: list[subprocess.Popen]) -> None:
         p.terminate()
     for p in procs:
         p.wait(30)
+
+
+def user_environment() -> dict[str, str]:
+    """This process's environment without any ``AVS_*`` setting (the services run with their
+    defaults, as ``avs up`` gives them to a user), rendering headless."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("AVS_")}
+    dropped = sorted(set(os.environ) - set(env))
+    if dropped:
+        print(f"not passed on to avs up: {', '.join(dropped)}", flush=True)
+    return env | {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}

@@ -79,7 +79,7 @@ sys.path.insert(0, str(ROOT))
 
 import zenoh  # noqa: E402
 
-from benchmarks._loopback import client_config  # noqa: E402
+from benchmarks._loopback import client_config, user_environment  # noqa: E402
 from benchmarks.soak import cpu_table, drive, thread_ticks  # noqa: E402
 from schemas import (  # noqa: E402
     GazeTarget,
@@ -403,16 +403,6 @@ def proc_stat() -> tuple[int, int]:
     idle = values[3] + (values[4] if len(values) > 4 else 0)  # idle + iowait
     total = sum(values[:8])  # user … steal (guest time is already in user)
     return total - idle, total
-
-
-def user_environment() -> dict[str, str]:
-    """This process's environment without any ``AVS_*`` setting (the services run with their
-    defaults, as ``avs up`` gives them to a user), rendering headless."""
-    env = {k: v for k, v in os.environ.items() if not k.startswith("AVS_")}
-    dropped = sorted(set(os.environ) - set(env))
-    if dropped:
-        print(f"not passed on to avs up: {', '.join(dropped)}", flush=True)
-    return env | {"MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
 
 
 def main() -> int:

@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from benchmarks.pipeline import Frame, SimClock, latencies, user_environment
+from benchmarks._loopback import user_environment
+from benchmarks.pipeline import Frame, SimClock, latencies
 
 
 def test_a_sim_stamp_is_mapped_by_the_quickest_status_sample_near_it():
