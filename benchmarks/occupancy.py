@@ -35,8 +35,8 @@ beyond the range or outside the box (``computeUpdate``), where ours clears along
 range inside the map (ours walks more rays: the kitchen's to its far walls); OctoMap computes
 each ray's keys from the sensor to its end, outside the box too, then keeps those inside it,
 ours clips the ray to the map first (the sensors are inside the maps here); OctoMap is an
-octree (a hash set of keys per scan, a tree descent per updated voxel, which stops early at the
-clamp), ours a dense grid in 8×8×8 blocks with a bit set per scan.
+octree (a hash set of keys per scan, then a tree search per key, leaving a voxel already at
+its clamp as it is), ours a dense grid in 8×8×8 blocks with a bit set per scan.
 
 As shipped (``integrate_ms_*``, ``shipped_vs_octomap_bbx``): ours with the scene memory's
 defaults (numba's whole pool, 2 threads here; rays stop early in space the scan cleared
