@@ -7,7 +7,9 @@ same cap (``memory.MAX_CLOUD``), both warm, the clouds compared point by point.
 Twice: alone, and beside one busy Python thread, as the scene memory's node runs its frame
 step beside its other threads (fusion, the network's callbacks, the snapshot writer). Every
 numpy call that lets the GIL go (a sort, a large ufunc) waits up to the interpreter's switch
-interval (5 ms) to take it back; a compiled call lets it go once.
+interval to take it back; a compiled call lets it go once. Both at the switch interval every
+AVS service sets (``ServiceSettings``' ``switch_interval_ms`` default, 0.5 ms, read from it;
+CPython's own is 5 ms), as the scene memory's process runs.
 
 Frames: the kitchen's start view and a ±``--pan``° head pan of ``--frames`` frames (640×480,
 noise on; rendered in a child process), every 2nd pixel each way (the scene memory's cloud);
@@ -15,6 +17,7 @@ medians over the frames after the cloud reached its cap.
 
 Last line: cloud_ms=<ours> numpy_ms=<x> cloud_busy_ms=<ours, a busy thread beside it>
 numpy_busy_ms=<x> speedup=<numpy ÷ ours, alone> speedup_busy=<beside the busy thread>
+switch_interval_ms=<the services' switch interval, at which both ran>
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks._busy import busy_thread  # noqa: E402
 from benchmarks.occupancy import frame_points, pan  # noqa: E402
+from services.common.config import ServiceSettings  # noqa: E402
 from services.scene_memory.cloud_merge import add_frame  # noqa: E402
 from services.scene_memory.fusion import voxel_keys  # noqa: E402
 from services.scene_memory.memory import MAX_CLOUD, MemoryConfig  # noqa: E402
@@ -109,6 +113,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=48, help="frames of the pan")
     parser.add_argument("--pan", type=float, default=40.0, help="the pan's half angle, degrees")
     args = parser.parse_args()
+    # the interpreter as every service runs it (services/common/main.py's run_node)
+    interval_ms = ServiceSettings.model_fields["switch_interval_ms"].default
+    sys.setswitchinterval(interval_ms / 1e3)
     spawn = multiprocessing.get_context("spawn")
     print(f"rendering the kitchen's pan: {args.frames + 1} frames, ±{args.pan:g}°", flush=True)
     with ProcessPoolExecutor(1, mp_context=spawn) as child:
@@ -128,7 +135,8 @@ def main() -> None:
             sys.exit("the clouds differ, or the pan never filled the cloud: no comparison")
         result[busy] = float(np.median(ours)), float(np.median(theirs))
         print(
-            f"{'beside a busy Python thread' if busy else 'alone'}: {len(ours)} frames at the "
+            f"{'beside a busy Python thread' if busy else 'alone'}, switch interval "
+            f"{interval_ms:g} ms: {len(ours)} frames at the "
             f"cap ({MAX_CLOUD:,} points), ours {result[busy][0]:.1f} ms, numpy calls "
             f"{result[busy][1]:.1f} ms (×{result[busy][1] / result[busy][0]:.1f}); "
             f"the same clouds",
@@ -138,7 +146,7 @@ def main() -> None:
     print(
         f"cloud_ms={ours:.1f} numpy_ms={numpy_ms:.1f} cloud_busy_ms={busy_ms:.1f} "
         f"numpy_busy_ms={numpy_busy:.1f} speedup={numpy_ms / ours:.2f} "
-        f"speedup_busy={numpy_busy / busy_ms:.2f}"
+        f"speedup_busy={numpy_busy / busy_ms:.2f} switch_interval_ms={interval_ms:g}"
     )
 
 

@@ -3,8 +3,9 @@
 Hypotheses come from minimal samples that use the normals, as in Schnabel et al. (2007): a
 plane from three points, a cylinder from two oriented points (axis n1 × n2), a sphere from two
 oriented points (where their normal lines meet). All hypotheses are scored at once on a subset
-of the segment (distance below ``dist`` and normal within ``angle_deg``), the best one is refined
-by least squares on its inliers, and the inliers are counted on the whole segment.
+of the segment (distance below ``dist`` and normal within ``angle_deg``; ``subset``: SUBSET
+points drawn at random, or None: every point), the best one is refined by least squares on its
+inliers, and the inliers are counted on the whole segment.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 from services.perception import kernels
 from services.perception.obb import cross
 
-SUBSET = 500  # points scoring the hypotheses
+SUBSET = 500  # points scoring the hypotheses (the fits' ``subset``)
 SIN_MIN = float(np.sin(np.radians(5)))  # cylinder pairs' normals at least 5° apart
 
 
@@ -143,22 +144,28 @@ def _pairs(rng: np.random.Generator, n: int, k: int) -> tuple[np.ndarray, np.nda
     return i[keep], j[keep]
 
 
-def _subset(rng: np.random.Generator, n: int) -> np.ndarray:
-    return np.arange(n) if n <= SUBSET else rng.integers(0, n, SUBSET)
+def _subset(rng: np.random.Generator, n: int, size: int | None) -> np.ndarray:
+    """The indices of the points that score the hypotheses: ``size`` drawn at random (with
+    replacement) of ``n``, or all of them when ``n`` ≤ ``size`` or ``size`` is None."""
+    return np.arange(n) if size is None or n <= size else rng.integers(0, n, size)
 
 
-def fit_plane(X, N, rng, dist, cos_min, hypotheses=48) -> Fit | None:
+def fit_plane(X, N, rng, dist, cos_min, hypotheses=48, subset=SUBSET) -> Fit | None:
     n = len(X)
     if n < 3:
         return None
     triples = rng.integers(0, n, (hypotheses, 3))
-    normal, d, mask, found = kernels.plane_ransac(X, N, triples, _subset(rng, n), dist, cos_min, 2)
+    normal, d, mask, found = kernels.plane_ransac(
+        X, N, triples, _subset(rng, n, subset), dist, cos_min, 2
+    )
     if not found:
         return None
     return Fit("plane", mask, normal=normal, d=float(d))
 
 
-def fit_cylinder(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit | None:
+def fit_cylinder(
+    X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32, subset=SUBSET
+) -> Fit | None:
     n = len(X)
     if n < 10:
         return None
@@ -168,7 +175,9 @@ def fit_cylinder(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit |
     centers, axes, radii = kernels.cylinder_hypotheses(X, N, i, j, SIN_MIN, r_min, r_max)
     if len(radii) == 0:
         return None
-    score = kernels.score_cylinders(X, N, _subset(rng, n), centers, axes, radii, dist, cos_min)
+    score = kernels.score_cylinders(
+        X, N, _subset(rng, n, subset), centers, axes, radii, dist, cos_min
+    )
     best = int(np.argmax(score))
     center, axis, radius = centers[best], axes[best], float(radii[best])
     for _ in range(2):
@@ -182,7 +191,7 @@ def fit_cylinder(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit |
     return Fit("cylinder", mask, center=center, axis=axis, radius=radius)
 
 
-def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit | None:
+def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32, subset=SUBSET) -> Fit | None:
     n = len(X)
     if n < 10:
         return None
@@ -190,7 +199,7 @@ def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32) -> Fit | N
     centers, radii = kernels.sphere_hypotheses(X, N, i, j, r_min, r_max)
     if len(radii) == 0:
         return None
-    score = kernels.score_spheres(X, N, _subset(rng, n), centers, radii, dist, cos_min)
+    score = kernels.score_spheres(X, N, _subset(rng, n, subset), centers, radii, dist, cos_min)
     best = int(np.argmax(score))
     center, radius = centers[best], float(radii[best])
     for _ in range(2):

@@ -129,6 +129,16 @@ class OccupancyConfig:
     threshold: float = 0.5
     max_range: float = 3.0
     discretize: bool = True
+    #: a ray stops once it crossed ``PATIENCE`` voxels in a row that coarser rays of the same
+    #: scan cleared (``_walk``); False: every ray is walked to the sensor (or the map's edge),
+    #: as OctoMap's ``computeRayKeys`` does
+    early_stop: bool = True
+    #: a ray crosses a block whose voxels are all free at the clamp in one step (a miss changes
+    #: none of them); False: voxel by voxel, each updated (to the clamp it is at already)
+    skip_saturated: bool = True
+    #: the threads that integrate a scan, at most numba's pool (and ``WALK_THREADS``);
+    #: 0: the whole pool
+    threads: int = 0
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -619,8 +629,10 @@ def _integrate(
     GIL back a dozen times a frame, each time waiting up to the interpreter's switch interval
     while another thread of the process held it (numba's parallel regions still take it twice
     each: ``benchmarks/gil_waits.py``). ``walk``: (PATIENCE, PATIENCE_REST, SUBPASSES,
-    SMALL_PASS, SERIAL_RAYS), read when called. Returns (rays cast, voxels updated, of them
-    unknown before inside the index box ``index``)."""
+    SMALL_PASS, SERIAL_RAYS), read when called (both patiences 0: no early stop), and 1 to
+    cross saturated blocks in one step (0: the walk sees no block saturated; the updates still
+    mark them). Returns (rays cast, voxels updated, of them unknown before inside the index box
+    ``index``)."""
     nx, ny, nz = shape
     seen[:] = -1
     grids[:] = 0
@@ -634,8 +646,8 @@ def _integrate(
         discretize, seen, grids, scratch, rays, starts,
     )  # fmt: skip
     _walk_passes(
-        visited, cleared, saturated, dirty, nx, ny, nz, lo, voxel, origin, rays, starts,
-        max_range, threads, walk,
+        visited, cleared, saturated if walk[5] else np.zeros_like(saturated), dirty, nx, ny, nz,
+        lo, voxel, origin, rays, starts, max_range, threads, walk,
     )  # fmt: skip
     blocks = np.flatnonzero(dirty)
     dirty[:] = 0
@@ -653,7 +665,7 @@ def _walk_passes(
 ):  # fmt: skip
     """Walk the rays of every pass (``starts``: their bounds in ``rays``, ``_hits``), in
     order, each pass's in rounds (``_integrate``'s ``walk``)."""
-    patience, patience_rest, subpasses, small_pass, serial_rays = walk
+    patience, patience_rest, subpasses, small_pass, serial_rays, _ = walk
     last = starts.shape[0] - 2
     for k in range(starts.shape[0] - 1):
         a, b = starts[k], starts[k + 1]
@@ -682,9 +694,10 @@ def _walk_passes(
                 )  # fmt: skip
 
 
-def _walk_threads(pool: int) -> int:
-    """The threads that walk the rays, of a numba pool of ``pool``: a row of ``_visited`` each."""
-    return min(pool, WALK_THREADS)
+def _walk_threads(pool: int, cap: int = 0) -> int:
+    """The threads that walk the rays, of a numba pool of ``pool`` (at most ``cap``; 0: no
+    cap): a row of ``_visited`` each."""
+    return min(pool, WALK_THREADS, cap or pool)
 
 
 @njit(cache=True, nogil=True)
@@ -739,7 +752,8 @@ class OccupancyMap:
         direction cells of the passes (``_level``)."""
         blocks = math.prod((n + 7) // 8 for n in self.shape)
         # a row per walking thread (``_free``)
-        self._visited = np.zeros((_walk_threads(numba.get_num_threads()), blocks * 64), np.uint8)
+        threads = _walk_threads(numba.get_num_threads(), self.config.threads)
+        self._visited = np.zeros((threads, blocks * 64), np.uint8)
         self._known_bits = np.zeros(blocks * 64, np.uint8)  # the known voxels (``mark_known``)
         self._hit = np.zeros(blocks * 64, np.uint8)
         self._cleared = np.zeros(blocks * 64, np.uint8)
@@ -829,7 +843,8 @@ class OccupancyMap:
             self._ray_scratch = np.empty((len(points), 3), np.float64)
         nx, ny, nz = self.shape
         pool = numba.get_num_threads()
-        threads = _walk_threads(pool)
+        c = self.config
+        threads = _walk_threads(pool, c.threads)
         if len(self._visited) < threads:  # more threads than when the map was made
             self._visited = np.zeros((threads, self._visited.shape[1]), np.uint8)
         if len(self._keys) < len(points):
@@ -846,7 +861,8 @@ class OccupancyMap:
                 self._keys[: len(points)], self._dir_cells[: len(points)], max_range,
                 self.config.discretize, self._seen, self._grids, self._per_unit, self._grid_off,
                 self._grid_w, self._ray_scratch, self._rays, self._milli, index, threads,
-                (PATIENCE, PATIENCE_REST, SUBPASSES, SMALL_PASS, SERIAL_RAYS),
+                (PATIENCE if c.early_stop else 0, PATIENCE_REST if c.early_stop else 0,
+                 SUBPASSES, SMALL_PASS, SERIAL_RAYS, int(c.skip_saturated)),
             )  # fmt: skip
         finally:
             numba.set_num_threads(pool)

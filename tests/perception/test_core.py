@@ -45,6 +45,29 @@ def test_plane_fit_recovers_the_plane_among_outliers():
     assert fit.count >= 1990
 
 
+def test_plane_hypotheses_are_scored_on_every_point_without_a_subset():
+    """Two parallel planes of 2100 and 1900 points: scored on all of them (``subset=None``),
+    the fit takes the larger plane whatever the seed; scored on ``SUBSET`` points drawn at
+    random (the default), it takes the smaller one for the seeds whose draw holds more of its
+    points."""
+    rng = np.random.default_rng(11)
+    uv = rng.uniform(-0.5, 0.5, (4000, 2))
+    z = np.where(np.arange(4000) < 2100, 0.0, 0.3) + rng.normal(0, 0.002, 4000)
+    X = np.column_stack([uv, z])
+    N = np.tile([0.0, 0.0, 1.0], (len(X), 1))
+    d = {
+        size: np.array([
+            abs(ransac.fit_plane(X, N, np.random.default_rng(s), 0.01, 0.9, 96, size).d)
+            for s in range(40)
+        ])
+        for size in (None, ransac.SUBSET)
+    }  # fmt: skip
+    assert np.all(d[None] < 0.005)  # z = 0, the larger
+    assert 0 < np.sum(np.abs(d[ransac.SUBSET] - 0.3) < 0.005) < 20
+    full = ransac.fit_plane(X, N, np.random.default_rng(0), 0.01, 0.9, 96, None)
+    assert full.count >= 2090 and len(full.inliers) == len(X)
+
+
 def test_cylinder_fit_recovers_radius_and_axis_from_a_visible_arc():
     axis = np.array([0.0, 0.3, 1.0])
     axis /= np.linalg.norm(axis)

@@ -269,23 +269,25 @@ def test_a_scan_counts_the_voxels_it_makes_known_in_a_box_as_it_updates_them():
     assert m.made_known == 0
 
 
-def test_rays_cross_saturated_free_blocks_in_one_step_and_change_nothing(monkeypatch):
+def test_rays_cross_saturated_free_blocks_in_one_step_and_change_nothing():
     """Rays cross a block whose voxels are all free at the clamp (where a miss is a no-op) in
     one step. With every ray walked whole (no early stop), eight scans from a moving camera give
-    exactly the map they give voxel by voxel; an object then put into that saturated free
-    space is updated by every hit (occupied after the third)."""
-    from services.scene_memory import occupancy
-
-    monkeypatch.setattr(occupancy, "PATIENCE", 0)
-    monkeypatch.setattr(occupancy, "PATIENCE_REST", 0)
+    exactly the map they give voxel by voxel (``skip_saturated=False``), which updates the
+    saturated voxels too (to the clamp they are at: more voxels updated, the same values and
+    the same saturated blocks); an object then put into that saturated free space is updated
+    by every hit (occupied after the third)."""
     scans = moving_scans(5)
-    skipping, walking = (OccupancyMap(LO, HI, OccupancyConfig(voxel=0.02)) for _ in range(2))
-    for depth, T in scans:
-        integrate(skipping, depth, T)
-        integrate(walking, depth, T)
-        walking._saturated[:] = 0  # this one never skips
+    skipping = OccupancyMap(LO, HI, OccupancyConfig(voxel=0.02, early_stop=False))
+    walking = OccupancyMap(
+        LO, HI, OccupancyConfig(voxel=0.02, early_stop=False, skip_saturated=False)
+    )
+    updated = [(integrate(skipping, depth, T), integrate(walking, depth, T)) for depth, T in scans]
     assert skipping._saturated.sum() > 100  # the free space before the boxes saturated
     assert np.array_equal(skipping.L, walking.L)
+    assert np.array_equal(skipping._saturated, walking._saturated)
+    assert updated[0][0] == updated[0][1]  # nothing saturated yet: the same walk
+    assert all(w >= s for s, w in updated)
+    assert updated[-1][1] > updated[-1][0] + 1000  # the saturated voxels' updates
     # a box appears 0.43 m before the camera, in free space that saturated
     spot = np.array([0.71, 0.0, 1.0])
     i = np.floor((spot - LO) / 0.02).astype(int)
@@ -302,6 +304,84 @@ def test_rays_cross_saturated_free_blocks_in_one_step_and_change_nothing(monkeyp
     restored = OccupancyMap.__new__(OccupancyMap)
     restored.__setstate__(skipping.__getstate__())
     assert np.array_equal(restored._saturated, skipping._saturated)
+
+
+def test_without_the_early_stop_every_ray_is_walked_whole():
+    """``early_stop=False`` walks every ray to the sensor. A ray through space cleared before
+    it steps through PATIENCE_REST voxels of it with the early stop, through all of them
+    without. Where no ray runs through space that rays before it cleared (40 rays 10° apart),
+    the map and the voxels updated are those of the early-stopping walk; on a full frame of
+    boxes before a wall, whose finer rays run beside coarser ones, it updates more voxels,
+    every one the early stop updated among them, each to the same value, from the same rays."""
+    from services.scene_memory import occupancy
+
+    # one ray, 59 voxels long, through a 64³ map all of which earlier rays cleared
+    n, voxel = 64, 0.01
+    bits = ((n + 7) // 8) ** 3 * 64
+    cleared, saturated, dirty = np.full(bits, 255, np.uint8), np.zeros(bits // 64, np.uint8), \
+        np.zeros(bits // 64, np.uint8)  # fmt: skip
+    origin, end = np.array([0.025, 0.325, 0.325]), np.array([0.615, 0.325, 0.325])
+    steps = []
+    for patience in (occupancy.PATIENCE_REST, 0):
+        visited = np.zeros(bits, np.uint8)
+        occupancy._walk(visited, cleared, saturated, dirty, n, n, n, np.zeros(3), voxel, origin,
+                        end, 3.0, patience)  # fmt: skip
+        steps.append(int(np.unpackbits(visited).sum()))
+    assert steps == [occupancy.PATIENCE_REST, 59]  # the end's own voxel is the hit's
+
+    T = camera_facing_x()
+    angles = np.radians(np.arange(-35, 40, 10))
+    a, b = (g.ravel() for g in np.meshgrid(angles, np.radians(np.arange(-20, 25, 10))))
+    directions = np.column_stack([np.cos(a) * np.cos(b), np.sin(a) * np.cos(b), np.sin(b)])
+    points = T[:3, 3] + 1.2 * directions
+    sparse = [OccupancyMap(LO, HI, OccupancyConfig(voxel=0.01, early_stop=e)) for e in (1, 0)]
+    counts = [m.integrate(points, T[:3, 3]) for m in sparse]
+    assert len(points) == 40 and counts[0] == counts[1] > 40 * 100
+    assert np.array_equal(sparse[0].L, sparse[1].L)
+
+    depth, T = moving_scans(5)[0]
+    stopping, whole = (OccupancyMap(LO, HI, OccupancyConfig(voxel=0.01, early_stop=e))
+                       for e in (True, False))  # fmt: skip
+    n_stop, n_whole = integrate(stopping, depth, T), integrate(whole, depth, T)
+    assert stopping.rays == whole.rays > 40_000
+    assert n_whole > n_stop + 100  # voxels of finer rays beside the coarser ones they joined
+    L_stop, L_whole = stopping.L, whole.L
+    known = L_stop != -32768
+    assert np.array_equal(L_whole[known], L_stop[known])
+    assert int((L_whole != -32768).sum()) == n_whole and int(known.sum()) == n_stop
+
+
+def test_one_thread_by_config_gives_the_map_of_the_whole_pool(monkeypatch):
+    """``threads=1`` integrates on one thread of numba's pool (the pool set to one for the
+    call, then restored; one visited set) and gives, voxel by voxel, the map the whole pool
+    gives."""
+    numba = pytest.importorskip("numba")
+    from services.scene_memory import occupancy
+
+    if numba.get_num_threads() < 2:
+        pytest.skip("one thread only")
+    pool = numba.get_num_threads()
+    asked = []
+    real = numba.set_num_threads
+
+    def spy(n: int) -> None:
+        asked.append(n)
+        real(n)
+
+    monkeypatch.setattr(numba, "set_num_threads", spy)
+    scans = moving_scans(11, far_rows=30)
+    one = OccupancyMap(LO, HI, OccupancyConfig(voxel=0.01, threads=1))
+    every = OccupancyMap(LO, HI, OccupancyConfig(voxel=0.01))
+    for depth, T in scans:
+        integrate(one, depth, T)
+        assert asked[-2:] == [1, pool] and numba.get_num_threads() == pool
+        asked.clear()
+        integrate(every, depth, T)
+        assert asked == [pool]  # the whole pool: never lowered
+    assert len(one._visited) == 1 and len(every._visited) == min(pool, occupancy.WALK_THREADS)
+    assert one.counts()[1] > 100_000
+    assert np.array_equal(one.L, every.L)
+    assert np.array_equal(one._saturated, every._saturated)
 
 
 def test_the_map_is_the_same_whichever_threads_walk_the_rays(monkeypatch):
