@@ -13,9 +13,10 @@ For every frame (by its ``seq``) this script, an outside client of ``avs up``'s 
 the time from its capture to
 - its **observation**: perception's ``SceneObservation`` on ``perception/observation`` (its
   ``frame_seq``);
-- the **semantic model**: the scene memory's ``SceneModel`` on ``memory/scene`` that fused
-  that observation (it names the frame whose observation it fused: ``frame_seq``; the scene
-  memory publishes one model per observation it fuses). ``fps_semantic`` counts these frames:
+- the **semantic model**: the first scene memory ``SceneModel`` on ``memory/scene`` that holds
+  that observation (it names every frame whose observation it is the first to hold:
+  ``fused_frames``; the scene memory publishes one model for the observations that waited
+  while it fused). ``fps_semantic`` counts these frames:
   an observation that never reached the model (dropped from the scene memory's queue, or
   never made) is not semantic, whatever happened to the frame's depth;
 - the **map** that integrated its depth: after each integrated depth frame the scene memory
@@ -140,7 +141,7 @@ class SimClock:
 @dataclass
 class Frame:
     seq: int
-    stamp: float  # capture, sim time
+    stamp: float | None  # capture, sim time (None until a message that carries it came)
     arrived: float | None = None  # the raw frame here (only with --frames)
     observation: float | None = None  # arrival times here, monotonic
     semantic: float | None = None  # the first SceneModel that fused its observation
@@ -156,13 +157,15 @@ class Ledger:
         self.perception_ms: dict[str, list[float]] = defaultdict(list)
         self.invalid = 0
 
-    def _frame(self, seq: int, stamp: float) -> Frame:
+    def _frame(self, seq: int, stamp: float | None) -> Frame:
         f = self.frames.get(seq)
         if f is None:
             f = self.frames[seq] = Frame(seq, stamp)
+        elif f.stamp is None:  # a model named it before its observation or map came
+            f.stamp = stamp
         return f
 
-    def note(self, stage: str, seq: int, stamp: float, at: float) -> None:
+    def note(self, stage: str, seq: int, stamp: float | None, at: float) -> None:
         with self.lock:
             f = self._frame(seq, stamp)
             if getattr(f, stage) is None:  # the first that includes it
@@ -175,7 +178,8 @@ class Ledger:
 
 #: the fields this meter reads of each message (the rest is skipped, not decoded: a kitchen
 #: SceneModel is 3 MB, six a second)
-FIELDS = ("schema", "version", "camera", "frame_seq", "frame_stamp", "stamp", "timings_ms")
+FIELDS = ("schema", "version", "camera", "frame_seq", "frame_stamp", "stamp", "timings_ms",
+          "fused_frames")  # fmt: skip
 
 
 def _message(payload: bytes, schema: str) -> dict | None:
@@ -204,8 +208,9 @@ def subscribe(session: zenoh.Session, keys: Keys, ledger: Ledger, frames: bool) 
         m = _message(sample.payload.to_bytes(), "SceneModel")
         if m is None:
             ledger.invalid += 1
-        elif m.get("frame_seq") is not None:
-            ledger.note("semantic", m["frame_seq"], m["frame_stamp"], at)
+        else:  # every frame whose observation it is the first model to hold (v3)
+            for seq in m.get("fused_frames") or []:
+                ledger.note("semantic", seq, None, at)
 
     def on_correction(sample: zenoh.Sample) -> None:
         at = time.monotonic()
@@ -318,7 +323,7 @@ def latencies(
     latency (ms, None where the stage did not take it); and per stage the latencies."""
     rows, per_stage = [], defaultdict(list)
     for f in sorted(frames, key=lambda f: f.seq):
-        captured = clock.to_monotonic(f.stamp)
+        captured = None if f.stamp is None else clock.to_monotonic(f.stamp)
         if captured is None or not t0 <= captured < t1:
             continue
         row = {"seq": f.seq, "t": round(captured - t0, 3)}

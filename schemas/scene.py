@@ -181,9 +181,11 @@ class SceneObservation(SceneGraph, Stamped):
 
 class SceneModel(SceneGraph, Stamped):
     """The fused scene across views (memory/scene), with occ(e) on support edges. v2:
-    ``frame_seq`` and ``frame_stamp``, the frame whose observation the model fused last."""
+    ``frame_seq`` and ``frame_stamp``, the frame whose observation the model fused last. v3:
+    ``fused_frames``, every frame whose observation this model is the first to hold (the scene
+    memory publishes one model for all the observations that waited while it fused)."""
 
-    VERSION: ClassVar[int] = 2
+    VERSION: ClassVar[int] = 3
 
     model_version: int = Field(ge=0, description="increases with every accepted update")
     n_views: int = Field(ge=0)
@@ -198,6 +200,12 @@ class SceneModel(SceneGraph, Stamped):
         "fused last; None before the first",
     )
     frame_stamp: float | None = Field(None, description="that frame's capture stamp")
+    fused_frames: list[int] = Field(
+        default_factory=list,
+        description="seqs of the frames whose observations were fused since the model "
+        "published before this one, in order (frame_seq is the last); empty in a reply to a "
+        "query",
+    )
 
 
 class PointCloud(Stamped):

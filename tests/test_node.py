@@ -236,6 +236,35 @@ def test_a_queued_input_runs_off_the_zenoh_callback_in_order(node, client):
     assert len(threads) == 1 and threads.pop().endswith(":slow")
 
 
+def test_a_batched_input_gets_everything_that_waited_in_one_call(node, client):
+    """``batch=True``: while the handler is busy, samples wait in the queue; the next call
+    gets every valid one of them as a list, in order (garbage among them dropped, counted)."""
+    keys = Keys()
+    calls: list[list[int]] = []
+    gate, started = threading.Event(), threading.Event()
+
+    def handler(messages: list[ImuSample]) -> None:
+        calls.append([m.seq for m in messages])
+        started.set()
+        gate.wait(10)
+
+    node.subscribe(keys.imu(), ImuSample, handler, queue=8, batch=True)
+    publisher = matched_publisher(client, keys.imu())
+    publisher.put(encode(imu(0)))
+    assert started.wait(10)
+    for i in range(1, 5):
+        publisher.put(encode(imu(i)))
+        if i == 2:
+            publisher.put(b"\x93\x01\x02")
+    time.sleep(0.5)
+    gate.set()
+    wait_for(lambda: len(calls) == 2, 10, "the second call")
+    assert calls == [[0], [1, 2, 3, 4]]
+    assert sum(node.metrics.snapshot().dropped.values()) == 1
+    with pytest.raises(ValueError):
+        node.subscribe(keys.imu(), ImuSample, handler, batch=True)  # no queue
+
+
 def test_an_inbox_gives_its_loop_the_valid_samples_in_order_and_counts_the_rest(node, client):
     """``Node.inbox``: no thread of its own; ``take()`` returns what came since the last call,
     valid ones in order, garbage counted; a ring found full is counted as ``inbox_full``."""

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from benchmarks._loopback import user_environment
-from benchmarks.pipeline import Frame, SimClock, latencies
+from benchmarks.pipeline import Frame, Ledger, SimClock, latencies
 
 
 def test_a_sim_stamp_is_mapped_by_the_quickest_status_sample_near_it():
@@ -69,3 +69,16 @@ def test_the_stack_starts_as_a_user_starts_it(monkeypatch):
     env = user_environment()
     assert not [k for k in env if k.startswith("AVS_")]
     assert env["MUJOCO_GL"]
+
+
+def test_a_model_that_names_a_frame_before_its_observation_came_is_timed_once_it_does():
+    """A model names its frames by seq only (``fused_frames``); the capture stamp comes with
+    the observation or the map's correction, whichever arrives."""
+    ledger = Ledger()
+    ledger.note("semantic", 5, None, 51.3)
+    assert ledger.snapshot()[0].stamp is None
+    ledger.note("observation", 5, 1.0, 51.2)
+    clock = SimClock()
+    clock.add(0.0, 50.0, 50.0)
+    rows, per = latencies(ledger.snapshot(), clock, 51.0, 52.0)
+    assert rows[0]["semantic"] == pytest.approx(300.0) and len(per["observation"]) == 1

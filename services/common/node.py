@@ -181,7 +181,12 @@ class Node:
             )
 
     def _handle(
-        self, name: str, handler: Callable[..., Any], message: Message, key: str, with_key: bool
+        self,
+        name: str,
+        handler: Callable[..., Any],
+        message: Message | list[Message],
+        key: str,
+        with_key: bool,
     ) -> None:
         t0 = time.perf_counter()
         try:
@@ -204,6 +209,7 @@ class Node:
         with_key: bool = False,
         accept: Callable[[bytes], bool] | None = None,
         nice: int | None = None,
+        batch: bool = False,
     ) -> None:
         """Call ``handler`` with every valid ``message_type`` published on ``key`` (and the
         sample's key, with ``with_key``).
@@ -218,8 +224,13 @@ class Node:
         (e.g. ``codec.peek``): a sample it refuses is not decoded at all. ``nice`` (with a
         thread of its own): that thread at ordinary scheduling and this nice value, whatever its
         process's (e.g. image work beside a real-time loop, or deferrable work at
-        ``realtime.BACKGROUND``).
+        ``realtime.BACKGROUND``). ``batch`` (with ``queue``): the handler gets a list, every
+        valid sample waiting when it is called, in arrival order (one call per turn: a handler
+        that falls behind works through what waited at once, e.g. publishing one result for
+        all of them).
         """
+        if batch and (queue <= 0 or latest_only or with_key):
+            raise ValueError("batch needs a queue, and neither latest_only nor with_key")
         name = name or getattr(handler, "__name__", key)
 
         def validated(sample: zenoh.Sample) -> tuple[str, M | None]:
@@ -258,13 +269,22 @@ class Node:
             if newest is not None:
                 self._handle(name, handler, newest[1], newest[0], with_key)
 
+        def every_valid(first: zenoh.Sample) -> None:
+            waiting = [first]
+            while (sample := subscriber.handler.try_recv()) is not None:
+                waiting.append(sample)
+            messages = [m for _, m in map(validated, waiting) if m is not None]
+            if messages:
+                self._handle(name, handler, messages, str(first.key_expr), False)
+
+        take = newest_valid if latest_only else every_valid if batch else on_sample
+
         def pump() -> None:
             if nice is not None:
                 ordinary(nice)
             while not self._stop.is_set():
                 try:
-                    sample = subscriber.handler.recv()
-                    newest_valid(sample) if latest_only else on_sample(sample)
+                    take(subscriber.handler.recv())
                 except zenoh.ZError:  # channel closed: undeclared or session closed
                     return
 

@@ -798,9 +798,11 @@ class Fusion:
         stamp: float = 0.0,
         frame_seq: int | None = None,
         frame_stamp: float | None = None,
+        fused_frames: list[int] | None = None,
     ) -> SceneModel:
         """The fused scene; ``frame_seq`` / ``frame_stamp``: the frame whose observation was
-        fused last (what a reader times the pipeline by)."""
+        fused last, ``fused_frames``: every frame whose observation this model is the first to
+        hold (what a reader times the pipeline by)."""
         shapes = _Shapes()
         support = self.support(shapes)
         root, unstable = self.unstable(support, shapes)
@@ -843,6 +845,7 @@ class Fusion:
             removed=self.last.removed,
             frame_seq=frame_seq,
             frame_stamp=frame_stamp,
+            fused_frames=fused_frames or [],
         )
 
 

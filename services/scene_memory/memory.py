@@ -283,9 +283,13 @@ class SceneMemory:
         self.timings_ms["fuse_ms"] = (time.perf_counter() - t0) * 1e3
         return update
 
-    def scene(self, seq: int = 0, stamp: float = 0.0) -> SceneModel:
+    def scene(
+        self, seq: int = 0, stamp: float = 0.0, fused_frames: list[int] | None = None
+    ) -> SceneModel:
+        """The scene model; ``fused_frames``: the frames whose observations it is the first
+        to hold (see ``SceneModel``)."""
         frame_seq, frame_stamp = self.fused_frame or (None, None)
-        return self.fusion.scene_model(seq, stamp, frame_seq, frame_stamp)
+        return self.fusion.scene_model(seq, stamp, frame_seq, frame_stamp, fused_frames)
 
     def point_cloud(self, seq: int = 0, stamp: float = 0.0, cap: int = 100_000) -> PointCloud:
         idx = np.linspace(0, len(self.cloud) - 1, min(cap, len(self.cloud))).astype(int)

@@ -131,8 +131,8 @@ class SceneMemoryNode:
         # observations in order (a few waiting at most), depth frames newest first (one at a
         # time); both at nice 0 beside rendering, after perception's worker (a frame is fused
         # once its depth is in the map: the map is on the pipeline's path, not deferrable)
-        node.subscribe(k.observation(), SceneObservation, self.on_observation, queue=OBS_QUEUE,
-                       nice=FOREGROUND)  # fmt: skip
+        node.subscribe(k.observation(), SceneObservation, self.on_observations,
+                       queue=OBS_QUEUE, batch=True, nice=FOREGROUND)  # fmt: skip
         node.subscribe(k.rgbd(settings.camera), RgbdFrame, self.on_frame, latest_only=True,
                        nice=0)  # fmt: skip
         node.serve(k.scene(), lambda _r: self.scene())
@@ -275,21 +275,35 @@ class SceneMemoryNode:
             self.out_registered.put(cloud)
 
     def on_observation(self, obs: SceneObservation) -> None:
-        if obs.camera != self.obs_camera:
-            return  # pc fusion takes the registered cloud's observations only
-        # its own frame's correction when that frame is being registered (the observation
-        # was perceived at that frame's odometry pose), not the one before it by a race
-        with self.registered:
-            self.registered.wait_for(
-                lambda: self.registering is None or self.registering > obs.frame_seq,
-                timeout=REGISTRATION_WAIT_S,
-            )
-        with self.model_lock:  # fused and the model taken at once: no observation in between
-            # the correction the map's side has now (a reference read: it replaces the array,
-            # never writes into it), journaled with the observation it moves
-            payload = pack_observation(encode(obs), self.memory.T_world_odom)
-            due = self._apply_update(OBSERVATION_CORRECTED, payload, message=obs)
-            scene = self.memory.scene(self.n, float(self.n))
+        self.on_observations([obs])
+
+    def on_observations(self, observations: list[SceneObservation]) -> None:
+        """Fuse the observations that waited, in order, each journaled with its correction;
+        then publish one scene model for all of them (``fused_frames``): when fusion falls
+        behind, the model (its build, encoding and sending: a third of an observation's cost
+        in a kitchen) is made once for what waited, not once each, so that it catches up."""
+        fused, due = [], False
+        for obs in observations:
+            if obs.camera != self.obs_camera:
+                continue  # pc fusion takes the registered cloud's observations only
+            # its own frame's correction when that frame is being registered (the observation
+            # was perceived at that frame's odometry pose), not the one before it by a race
+            with self.registered:
+                self.registered.wait_for(
+                    lambda o=obs: self.registering is None or self.registering > o.frame_seq,
+                    timeout=REGISTRATION_WAIT_S,
+                )
+            with self.model_lock:
+                # the correction the map's side has now (a reference read: it replaces the
+                # array, never writes into it), journaled with the observation it moves
+                payload = pack_observation(encode(obs), self.memory.T_world_odom)
+                due = self._apply_update(OBSERVATION_CORRECTED, payload, message=obs) or due
+            fused.append(obs.frame_seq)
+        if not fused:
+            return
+        with self.model_lock:  # the model as of the last of them
+            scene = self.memory.scene(self.n, float(self.n), fused)
+        self.node.metrics.gauge("observations_per_model", len(fused))
         self.out_scene.put(scene)
         if due:
             self._snapshot()

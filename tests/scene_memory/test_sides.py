@@ -8,11 +8,13 @@ import threading
 
 import pytest
 
+from schemas import SceneModel, decode
 from services.common.node import Node
 from services.scene_memory.config import SceneMemorySettings
 from services.scene_memory.memory import MemoryConfig, SceneMemory
 from services.scene_memory.node import SceneMemoryNode
 from services.scene_memory.registration import RegistrationConfig
+from tests.conftest import wait_for
 from tests.scene_memory.views import BOUNDS_MAX, BOUNDS_MIN, VOXEL
 
 
@@ -79,3 +81,24 @@ def test_only_a_frame_that_will_be_registered_holds_up_observations(updates):
     soon = later.model_copy(update={"seq": later.seq + 1, "stamp": later.stamp + 0.2})
     due = later.model_copy(update={"seq": later.seq + 2, "stamp": later.stamp + 0.6})
     assert not on.registering(soon) and on.registering(due)
+
+
+def test_observations_that_waited_are_fused_and_published_as_one_model(memory, updates):
+    """Fusion behind: the observations that waited are fused in order and one model holds
+    them all, naming every frame (``fused_frames``); alone, one model per observation."""
+    observations = [m for kind, m in updates if kind == "observation"][:3]
+    models: list[SceneModel] = []
+    sub = memory.node.session.declare_subscriber(
+        memory.node.keys.scene(), lambda s: models.append(decode(s.payload.to_bytes(), SceneModel))
+    )
+    try:
+        memory.on_observations(observations[:2])
+        memory.on_observations(observations[2:])
+        wait_for(lambda: len(models) == 2, 10, "two models")
+    finally:
+        sub.undeclare()
+    frames = [o.frame_seq for o in observations]
+    assert models[0].fused_frames == frames[:2] and models[0].frame_seq == frames[1]
+    assert models[1].fused_frames == frames[2:] and models[1].n_views == 3
+    assert memory.n == 3  # each journaled on its own
+    assert memory.scene().fused_frames == []  # a query's reply names none
