@@ -554,7 +554,7 @@ def run(args, up: subprocess.Popen, endpoint: str, keys: Keys, started: float) -
     stages = {}
     if mem1 is not None:
         handlers = {k: v.model_dump() for k, v in mem1.processing_ms.items()
-                    if k in ("on_frame", "on_observation")}  # fmt: skip
+                    if k in ("on_frame", "on_observations")}  # fmt: skip
         gauges = {"last_" + k: round(v, 1) for k, v in mem1.extra.items() if k.endswith("_ms")}
         stages["scene_memory"] = handlers | gauges
     stages["perception_ms_p50"] = {k: pct(v, 50) for k, v in sorted(ledger.perception_ms.items())}
@@ -594,7 +594,7 @@ def run(args, up: subprocess.Popen, endpoint: str, keys: Keys, started: float) -
     print("counts: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
     if "scene_memory" in stages:
         sm = stages["scene_memory"]
-        for name in ("on_frame", "on_observation"):
+        for name in ("on_frame", "on_observations"):
             if name in sm:
                 print(f"scene memory {name}: p50 {sm[name]['p50']:.0f} ms, p99 "
                       f"{sm[name]['p99']:.0f} ms (n {sm[name]['count']})")  # fmt: skip
