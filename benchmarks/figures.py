@@ -416,7 +416,7 @@ def render_strategies(stdout: str, out: Path) -> str:
     orders = data.get("orderings")
     if not isinstance(orders, list):
         return text + "\n\n(metrics.json has no orderings)"
-    said: dict[bool, list[str]] = {True: [], False: []}
+    said: dict[bool, dict[str, list[str]]] = {True: {}, False: {}}  # by metric, in order
     for o in orders:
         m, a, b = o.get("metric"), o.get("better"), o.get("worse")
         name, _, higher = COMPARED.get(m, (m, None, False))
@@ -425,10 +425,13 @@ def render_strategies(stdout: str, out: Path) -> str:
         except (KeyError, RenderError):
             equal = False
         sign = "=" if equal else (">" if higher else "<")
-        said[bool(o.get("supported"))].append(f"{name.split(',')[0]} {a} {sign} {b}")
-    return (f"{text}\n\nOrderings the intervals support (apart): "
-            f"{'; '.join(said[True]) or 'none'}. Not resolved (they overlap): "
-            f"{'; '.join(said[False]) or 'none'}.")  # fmt: skip
+        said[bool(o.get("supported"))].setdefault(name.split(",")[0], []).append(f"{a} {sign} {b}")
+
+    def listed(by_metric: dict[str, list[str]]) -> str:
+        return "; ".join(f"{m}: {', '.join(p)}" for m, p in by_metric.items()) or "none"
+
+    return (f"{text}\n\nOrderings the intervals support (apart): {listed(said[True])}. "
+            f"Not resolved (they overlap): {listed(said[False])}.")  # fmt: skip
 
 
 def _percent(x: float) -> str:
@@ -561,7 +564,7 @@ REGISTRY: dict[str, Figure] = {
         _benchmark("nbv", 4),
         _benchmark("perception", 4),
         _benchmark("registration", 3),
-        _benchmark("cloud_merge", 2),
+        _benchmark("cloud_merge", 1),
         _benchmark("gil_waits", 2),
         _benchmark("gaze", 1),
         _benchmark("zenoh_cost", 1),

@@ -445,11 +445,10 @@ def test_the_strategies_render_medians_intervals_and_supported_orderings(tmp_pat
         "| random | 0.36 [0.20, 0.50] | 4.45 [4.40, 4.60] | 22.7 [16.4, 25.7] | 5 |",
     ]
     assert orders == (
-        "Orderings the intervals support (apart): unknown voxels occupancy < utility; unknown "
-        "voxels occupancy < random; unknown voxels utility < random; path cost utility < "
-        "occupancy; path cost random < occupancy. Not resolved (they overlap): support F1 "
-        "occupancy > random; support F1 occupancy > utility; support F1 random = utility; path "
-        "cost utility < random."
+        "Orderings the intervals support (apart): unknown voxels: occupancy < utility, "
+        "occupancy < random, utility < random; path cost: utility < occupancy, random < "
+        "occupancy. Not resolved (they overlap): support F1: occupancy > random, occupancy > "
+        "utility, random = utility; path cost: utility < random."
     )
     # the format before the bootstrap: the episodes alone, medians and ranges, said so
     (tmp_path / "metrics.json").write_text(json.dumps(runs))
