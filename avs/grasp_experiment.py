@@ -22,7 +22,10 @@ Lockstep at 1 kHz, like ``gaze_experiment``. What the robot does:
   hand corrects.
 
 With ``sensors`` the robot's readings come through the sensor models (gyro noise and bias,
-encoder noise and latency, odometry drift)."""
+encoder noise and latency, odometry drift).
+
+Whether the cup was grasped is MuJoCo's to say, not the servo's: the cup lifted off the table
+and held between the fingers to the end (``GraspExperimentConfig.grasp_lift`` …)."""
 
 from __future__ import annotations
 
@@ -45,6 +48,7 @@ from services.gaze.sensing import nearest
 from services.gaze.stabiliser import GazeStabiliser, StabiliserConfig
 from services.sim.render import CameraRenderer, intrinsics
 from services.sim.robots import ROBOTS
+from services.sim.scene import ROBOT_PREFIX
 from services.sim.sensors import RobotSensors, planar
 from services.sim.world import World
 
@@ -71,6 +75,9 @@ class GraspExperimentConfig:
     route: tuple[tuple[float, float, float], ...] = ((2.0, -0.2, 0.2), (2.45, 0.0, 0.0))
     goal: tuple[float, float, float] = (4.6, 0.0, 0.0)
     duration: float = 24.0  # s at most
+    #: s the run goes on once the servo is done: the cup carried while the platform drives on
+    #: (what ``grasp_hold_s`` judges the grasp over)
+    carry_s: float = 2.0
     stabilize: bool = True
     fps: float = 30.0  # left foveal frames per second (the optical flow's)
     localise_every: int = 3  # frames: the foveal pair localises at fps / this (10 Hz)
@@ -91,6 +98,12 @@ class GraspExperimentConfig:
     kinematic_error_deg: float = 0.5  # σ of the servo's per-joint calibration error
     sensors: bool = True
     seed: int = 0
+    #: what counts as grasped, judged on MuJoCo's state at the end: the cup at least
+    #: ``grasp_lift`` above where it stood, and over the last ``grasp_hold_s`` never further
+    #: than ``grasp_near`` from the grasp site between the fingers (m, s, m)
+    grasp_lift: float = 0.05
+    grasp_hold_s: float = 2.0
+    grasp_near: float = 0.03
 
 
 @dataclass
@@ -106,8 +119,14 @@ class GraspRun:
     first_localised_s: float | None = None
     acuity_raised_s: float | None = None  # when the cup came near the reach
     acuity_reached_s: float | None = None  # when its σ first met the raised acuity after that
+    #: MuJoCo's state every 10 ms, what the grasp is judged by (not the servo's phase):
+    #: (t, the cup's height above where it stood, its distance to the grasp site, the fingers'
+    #: closure 0 open … 1 fully closed)
+    cup_track: list[tuple[float, float, float, float]] = field(default_factory=list)
     grasped: bool = False
-    lift_m: float = 0.0
+    lift_m: float = 0.0  # the cup's height above where it stood, at the end
+    hold_m: float = math.inf  # its largest distance to the grasp site over the last hold_s
+    gripper_max: float = 0.0  # the fingers' largest closure
 
 
 def _K(world: World, camera: str) -> tuple[np.ndarray, object]:
@@ -189,6 +208,8 @@ def run_grasp(
     check = StereoCheck()
     cup_id = world.model.body(c.target).id
     cup_z0 = float(world.data.xpos[cup_id][2])
+    grasp_site = world.model.site(ROBOT_PREFIX + arm.spec.grasp_site).id
+    fingers = [world.servos[f] for f in arm.spec.fingers]
 
     world.set_base_goal(*c.goal, path=np.array(c.route) if c.route else None)
     if c.sway[0] > 0:
@@ -203,6 +224,13 @@ def run_grasp(
     saccade_until = c.saccade_s
     raised = False  # the cup's acuity, once it comes near the reach
     run = GraspRun()
+
+    def track() -> None:
+        """MuJoCo's own account of the grasp, which the servo's phase is not."""
+        d = world.data
+        closure = float(np.mean([d.qpos[f.qpos] / f.upper for f in fingers]))
+        near = float(np.linalg.norm(d.xpos[cup_id] - d.site_xpos[grasp_site]))
+        run.cup_track.append((world.time, float(d.xpos[cup_id][2]) - cup_z0, near, closure))
 
     def model_q(q: dict[str, float]) -> dict[str, float]:
         return {n: v + calibration.get(n, 0.0) for n, v in q.items()}
@@ -355,6 +383,8 @@ def run_grasp(
             cmd = stab.command(aim(q, base), base, twist, q, qd, gyro, now, latency)
             world.command_joints(list(cmd.velocity), "velocity", np.array([*cmd.velocity.values()]))
         world.step()
+        if k % 10 == 0:
+            track()
         phase = k % period
         stereo = (len(run.times) + 1) % c.localise_every == 0  # the frame being exposed
         if phase == 0 or (phase - period) in offsets:
@@ -381,14 +411,15 @@ def run_grasp(
             peripheral_frame(frames, me.cameras())
         if progress is not None and k % 100 == 0:
             progress(k / steps)
-        if done_at is not None and world.time > done_at + 0.5:
+        if done_at is not None and world.time > done_at + c.carry_s:
             break
     renderer.close()
-    hand_true = arm.pose(dict(zip(*world.joint_state()[:2], strict=True)), world.base_pose()[:3])
-    run.lift_m = float(world.data.xpos[cup_id][2] - cup_z0)
-    run.grasped = bool(
-        run.lift_m > 0.05 and np.linalg.norm(world.data.xpos[cup_id] - hand_true[:3, 3]) < 0.05
-    )
+    track()
+    t, lift, near, closure = np.asarray(run.cup_track).T
+    run.lift_m = float(lift[-1])
+    run.hold_m = float(near[t >= t[-1] - c.grasp_hold_s].max())
+    run.gripper_max = float(closure.max())
+    run.grasped = run.lift_m >= c.grasp_lift and run.hold_m <= c.grasp_near
     if progress is not None:
         progress(1.0)
     return run
@@ -414,11 +445,16 @@ def _stats(values: np.ndarray) -> dict:
 def summarise(run: GraspRun, config: GraspExperimentConfig) -> dict:
     """metrics.json of one run: the issue's keys plus what explains them. ``flow_rmse_deg_s``
     (Table 5.1) is over the frames while the gaze holds a target; ``flow_rmse_all_deg_s`` over
-    every frame, gaze shifts included."""
+    every frame, gaze shifts included. ``grasped`` is judged on MuJoCo's state: ``lift_m`` (the
+    cup's height above where it stood, at the end), ``hold_m`` (its largest distance to the
+    grasp site over the last ``grasp_hold_s``); ``gripper_max`` is the fingers' largest closure
+    (0 open … 1 closed on nothing)."""
     flow = np.asarray(run.flow)
     return {
         "grasped": run.grasped,
         "lift_m": run.lift_m,
+        "hold_m": run.hold_m,
+        "gripper_max": run.gripper_max,
         "first_localised_s": run.first_localised_s,
         "acuity_raised_s": run.acuity_raised_s,
         "acuity_reached_s": run.acuity_reached_s,
