@@ -2,14 +2,18 @@
 a green cup it has to find, while moving, by position-based visual servoing, with the gaze
 stabiliser on or off (``--compare``: both, printed as thesis Table 5.1). Writes
 ``DIR/metrics.json``, ``uncertainty.png`` (Fig. 5.12), ``flow.png`` and ``frames.png``; with
-``--seeds N`` each seed goes to ``DIR/seed-<k>/`` and ``DIR/metrics.json`` holds all of them."""
+``--seeds N`` each seed goes to ``DIR/seed-<k>/`` and ``DIR/metrics.json`` holds all of them;
+``--jobs N`` runs N of the runs at a time, each in a process of its own."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
+from multiprocessing import get_context
 from pathlib import Path
 
 from avs.commands.gaze_experiment import _bar
@@ -36,15 +40,25 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--duration", type=float, default=24.0, help="s of simulated time at most")
     p.add_argument("--seed", type=int, default=0, help="first seed (sensor models, calibration)")
     p.add_argument("--seeds", type=int, default=1, help="seeds to run, from --seed")
+    p.add_argument(
+        "--jobs", type=int, default=1,
+        help="runs at a time, each in a process of its own (a run keeps one core busy)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=_run)
 
 
-def _one(config, out: Path, label: str) -> tuple[dict, object]:
+def _one(config, out: Path, label: str, bar: bool = True) -> tuple[dict, object]:
+    """One run, its metrics.json written to ``out``; ``bar``: a progress bar on stderr (one run
+    at a time), else a line when it is done."""
     from avs.grasp_experiment import run_grasp, summarise
 
-    run = run_grasp(config, _bar(f"{label:>22}"))
-    print(file=sys.stderr)
+    start = time.monotonic()
+    run = run_grasp(config, _bar(f"{label:>22}") if bar else None)
+    if bar:
+        print(file=sys.stderr)
+    else:
+        print(f"{label}: done in {time.monotonic() - start:.0f} s", file=sys.stderr, flush=True)
     metrics = summarise(run, config)
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
@@ -91,16 +105,26 @@ def _run(args: argparse.Namespace) -> int:
     modes = {"unstabilised": False, "stabilised": True} if args.compare else {
         "stabilised" if args.stabilize == "on" else "unstabilised": args.stabilize == "on"
     }  # fmt: skip
-    results: dict[str, list[dict]] = {m: [] for m in modes}
-    for k in range(args.seed, args.seed + args.seeds):
-        out = args.out if args.seeds == 1 else args.out / f"seed-{k}"
-        runs = {}
-        for mode, on in modes.items():
-            config = replace(base, stabilize=on, seed=k)
-            where = out / ("on" if on else "off") if args.compare else out
-            metrics, runs[mode] = _one(config, where, f"{mode} seed {k}")
-            results[mode].append(metrics)
-        grasp_plots(runs, out, base.acuity_grasp)
+    seeds = range(args.seed, args.seed + args.seeds)
+    outs = {k: args.out if args.seeds == 1 else args.out / f"seed-{k}" for k in seeds}
+    tasks = {
+        (k, mode): (
+            replace(base, stabilize=on, seed=k),
+            outs[k] / ("on" if on else "off") if args.compare else outs[k],
+            f"{mode} seed {k}",
+        )
+        for k in seeds
+        for mode, on in modes.items()
+    }
+    if args.jobs > 1:  # spawned: a forked MuJoCo/EGL context is not to be shared
+        with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
+            pending = {key: pool.submit(_one, *task, bar=False) for key, task in tasks.items()}
+            done = {key: f.result() for key, f in pending.items()}
+    else:
+        done = {key: _one(*task) for key, task in tasks.items()}
+    results: dict[str, list[dict]] = {m: [done[k, m][0] for k in seeds] for m in modes}
+    for k in seeds:
+        grasp_plots({m: done[k, m][1] for m in modes}, outs[k], base.acuity_grasp)
     summary = {m: (r[0] if args.seeds == 1 else r) for m, r in results.items()}
     args.out.mkdir(parents=True, exist_ok=True)
     if args.compare or args.seeds > 1:
