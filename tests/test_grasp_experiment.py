@@ -1,13 +1,19 @@
-"""The grasping-while-moving experiment's parts (thesis 5.4.2): stereo localisation with its
+"""The grasping-while-moving experiment (thesis 5.4.2): its parts (stereo localisation with its
 covariance, the blob checks that refuse smeared and cut-off blobs, which frames count as the
-gaze holding, and the command's outputs. (The servo and the grasp: tests/sim/test_arms.py.)"""
+gaze holding) and the command end to end, judged on MuJoCo's state: the cup grasped and the
+image steadier stabilised at the defaults; no grasp where no green cup is to be seen; no grasp
+where the servo closes and lifts but the cup stays put. (The servo alone:
+tests/sim/test_arms.py.)"""
 
 from __future__ import annotations
 
 import json
 import math
+import os
+import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -22,6 +28,7 @@ from services.gaze.stabiliser import GazeStabiliser, StabiliserConfig
 from services.sim.render import CameraRenderer
 from services.sim.robots import ARMAR3
 from services.sim.world import World
+from tests.conftest import ROOT
 
 
 def test_stereo_localises_the_hand_marker_within_its_covariance() -> None:
@@ -112,23 +119,132 @@ def test_fixating_leaves_out_the_gaze_shifts() -> None:
     assert keep[t < 0.45].all() and keep[(t > 0.9) & (t < 1.45)].all()
 
 
-@pytest.mark.timeout(300)
-def test_grasp_experiment_command_writes_its_outputs(tmp_path) -> None:
-    """A short compare run: both modes' metrics with the issue's keys, the three figures, and
-    Table 5.1's layout on stdout."""
-    out = tmp_path / "g"
-    done = subprocess.run(
-        [sys.executable, "-m", "avs.cli", "grasp-experiment", "--compare", "--duration", "1.5",
-         "--out", str(out)],
-        capture_output=True, text=True, timeout=280,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert "flow RMSE mean (deg/s)" in done.stdout and "decrease" in done.stdout
+# -- end to end: the command as a user runs it, judged on MuJoCo's state -------------------------
+
+SCENE = ROOT / "services" / "sim" / "scenes" / "grasping.xml"
+CUP = '<body name="cup" pos="3.0 0.53 0.9" childclass="object">'
+
+
+def _variant(where: Path, name: str, old: str, new: str) -> Path:
+    """The grasping scene with one thing changed (a scene file, as a user would write one)."""
+    text = SCENE.read_text()
+    assert text.count(old) == 1, old
+    path = where / f"{name}.xml"
+    path.write_text(text.replace(old, new))
+    return path
+
+
+def _no_green_cup(where: Path) -> list[str]:
+    """The cup on the table is white: nothing the robot looks for is there. 16 s: the platform
+    carries the cup through the arm's reach (0.45 to 0.05 m ahead of it) from 12.4 to 15.1 s,
+    where the defaults grasp it (the fingers close at 13 s)."""
+    scene = _variant(where, "white_cup", 'rgba="0.1 0.7 0.15 1"', 'rgba="0.9 0.9 0.9 1"')
+    return ["--scene", str(scene), "--duration", "16"]
+
+
+def _screwed_cup(where: Path) -> list[str]:
+    """The cup is screwed to the table (no free joint): seen, reached, closed on, not lifted."""
+    return ["--scene", str(_variant(where, "screwed_cup", f"{CUP}\n      <freejoint/>", CUP))]
+
+
+#: the end-to-end tests and their runs' arguments (seed 0, the sensor models on: the defaults)
+EXPERIMENTS = {
+    "test_grasp_experiment_grasps_the_cup_and_stabilising_steadies_the_image": (
+        lambda where: ["--compare", "--jobs", "2"]
+    ),
+    "test_the_servo_waits_while_the_cup_is_never_localised": _no_green_cup,
+    "test_grasped_is_judged_by_mujoco_not_by_the_servo": _screwed_cup,
+}
+
+
+@pytest.fixture(scope="module")
+def experiments(request, tmp_path_factory):
+    """The runs of the end-to-end tests selected, all started at once (a run keeps one core
+    busy; side by side they share the machine's cores instead of queueing): test name →
+    (process, its output directory, its stdout file)."""
+    where = tmp_path_factory.mktemp("grasp")
+    wanted = {item.name for item in request.session.items}
+    runs = {}
+    for name, arguments in EXPERIMENTS.items():
+        if name not in wanted:
+            continue
+        out = where / name
+        log = where / f"{name}.log"
+        with log.open("w") as stdout, (where / f"{name}.err").open("w") as stderr:
+            command = [sys.executable, "-m", "avs.cli", "grasp-experiment", *arguments(where)]
+            process = subprocess.Popen(
+                [*command, "--out", str(out)], stdout=stdout, stderr=stderr,
+                start_new_session=True,
+            )  # fmt: skip
+        runs[name] = (process, out, log)
+    yield runs
+    for process, _, _ in runs.values():
+        if process.poll() is None:  # a test failed before its run ended: the run's workers too
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+
+
+def _finished(run: tuple[subprocess.Popen, Path, Path]) -> tuple[str, Path]:
+    """(stdout, output directory) of a test's run, once it has ended."""
+    process, out, log = run
+    code = process.wait()
+    assert code == 0, log.with_suffix(".err").read_text()[-3000:]
+    return log.read_text(), out
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_grasp_experiment_grasps_the_cup_and_stabilising_steadies_the_image(
+    experiments, request
+) -> None:
+    """``avs grasp-experiment --compare`` at its defaults (seed 0, 24 s at most, the sensor
+    models on): stabilised, the cup ends lifted ≥ 5 cm off the table and stays within 3 cm of
+    the grasp site between the fingers over the run's last 2 s, the 2 s the robot carries it
+    while driving on (MuJoCo's state, whatever the servo's phase says); the flow error while
+    the gaze holds a target is at least 40 % lower than unstabilised (seed 0 measured 3.40 →
+    1.58 deg/s, −53 %). Also the command's outputs: both modes' metrics, the three figures and
+    Table 5.1's layout."""
+    stdout, out = _finished(experiments[request.node.name])
     metrics = json.loads((out / "metrics.json").read_text())
-    for mode in ("stabilised", "unstabilised"):
-        m = metrics[mode]
-        assert {"grasped", "first_localised_s", "uncertainty", "flow_rmse_deg_s"} <= set(m)
+    on, off = metrics["stabilised"], metrics["unstabilised"]
+    assert on["lift_m"] >= 0.05, on["lift_m"]
+    assert on["hold_m"] <= 0.03, on["hold_m"]
+    assert on["grasped"] is True
+    assert on["flow_rmse_deg_s"]["mean"] < 0.6 * off["flow_rmse_deg_s"]["mean"]
+    assert "flow RMSE mean (deg/s)" in stdout and "decrease" in stdout
+    for m in (on, off):
         assert set(m["flow_rmse_deg_s"]) == {"mean", "std", "max"}
-        assert m["grasped"] is False  # 1.5 s: nowhere near the table yet
+        assert {"first_localised_s", "uncertainty", "phases", "gaze_shifts"} <= set(m)
     for name in ("uncertainty.png", "flow.png", "frames.png"):
         assert (out / name).stat().st_size > 5000
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_the_servo_waits_while_the_cup_is_never_localised(experiments, request) -> None:
+    """A white cup where the green one stood: nothing on the table is what the robot looks
+    for. While the platform drives the cup through the arm's reach, the cup is never localised,
+    the servo never leaves its waiting phase, the fingers stay open (MuJoCo's finger joints:
+    under 5 % of their travel), the cup stays where it stood (within 5 mm) and ``grasped`` is
+    false."""
+    _, out = _finished(experiments[request.node.name])
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["first_localised_s"] is None and m["uncertainty"] == []
+    assert [p for _, p in m["phases"]] == ["wait"]
+    assert m["gripper_max"] < 0.05, m["gripper_max"]
+    assert abs(m["lift_m"]) < 0.005, m["lift_m"]
+    assert m["grasped"] is False
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_grasped_is_judged_by_mujoco_not_by_the_servo(experiments, request) -> None:
+    """The cup screwed to the table: seen, reached and closed on, and the servo goes through
+    closing, lifting and done as it does on a free cup; but the cup does not rise, so
+    ``grasped`` is false (the servo's phase would have said true)."""
+    _, out = _finished(experiments[request.node.name])
+    m = json.loads((out / "metrics.json").read_text())
+    assert [p for _, p in m["phases"]][-3:] == ["close", "lift", "done"]
+    assert m["gripper_max"] > 0.3, m["gripper_max"]  # the fingers met the cup
+    assert abs(m["lift_m"]) < 0.001, m["lift_m"]
+    assert m["grasped"] is False
