@@ -56,6 +56,7 @@ def test_every_command_has_help(command):
         ["run", "--views", "0"],
         ["explore", "--voxel", "fine"],
         ["gaze-experiment", "--exposure", "bright"],
+        ["grasp-experiment", "--jobs", "0"],
     ],
     ids=" ".join,
 )

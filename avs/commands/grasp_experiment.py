@@ -16,6 +16,7 @@ from dataclasses import replace
 from multiprocessing import get_context
 from pathlib import Path
 
+from avs.commands._args import positive_int
 from avs.commands.gaze_experiment import _bar
 
 
@@ -39,9 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument("--duration", type=float, default=24.0, help="s of simulated time at most")
     p.add_argument("--seed", type=int, default=0, help="first seed (sensor models, calibration)")
-    p.add_argument("--seeds", type=int, default=1, help="seeds to run, from --seed")
+    p.add_argument("--seeds", type=positive_int, default=1, help="seeds to run, from --seed")
     p.add_argument(
-        "--jobs", type=int, default=1,
+        "--jobs", type=positive_int, default=1,
         help="runs at a time, each in a process of its own (a run keeps one core busy)",
     )  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="output directory")
