@@ -598,7 +598,10 @@ REGISTRY: dict[str, Figure] = {
             render_gaze_exposure,
         ),
         Figure(
-            "grasping", "avs grasp-experiment --compare --seeds 5 --jobs 2 --out DIR", 6, render_grasping
+            "grasping",
+            "avs grasp-experiment --compare --seeds 5 --jobs 2 --out DIR",
+            6,
+            render_grasping,
         ),
     )
 }
