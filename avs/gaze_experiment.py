@@ -17,8 +17,10 @@ finders are the same in both modes.
 
 With ``sensors`` (the default) the controller sees what the live stack gives it: the robot's
 gyro with white noise and a drifting bias, joint states from noisy 14-bit encoders at 200 Hz,
-each 2 ms late (``services/sim/sensors.py``), and the gyro sample of each joint state's instant
-for the VOR, as the gaze node takes it; without, the simulator's exact state every step."""
+each 2 ms late (``services/sim/sensors.py``), the gyro sample of each joint state's instant
+for the VOR, as the gaze node takes it, and the platform where the odometry believes it is (the
+target is given in world coordinates, which the robot relates to itself through that belief);
+without, the simulator's exact state every step. The gaze error is always the true camera's."""
 
 from __future__ import annotations
 
@@ -63,6 +65,9 @@ class GazeExperimentConfig:
     subframes: int = 4  # renders averaged over the exposure
     settle: float = 1.0  # s of fixating before the disturbance starts
     sensors: bool = True  # the robot's sensor models (noise, bias, latency), else exact state
+    #: how far off the truth the odometry believes the platform at the start (x m, y m,
+    #: yaw rad), as after a drive (with ``sensors``); the platform stands, so it stays off
+    odometry_error: tuple[float, float, float] = (0.0, 0.0, 0.0)
     state_rate: float = 200.0  # joint states per second with the sensor models (the sim's)
     seed: int = 0
 
@@ -122,16 +127,20 @@ def run_object(
     deg_per_px = (math.degrees(math.atan(1 / K.fx)), math.degrees(math.atan(1 / K.fy)))
 
     sensors = RobotSensors(robot.sensors, c.seed, world.base_pose()[:3]) if c.sensors else None
+    if sensors is not None:
+        start = np.array(world.base_pose()[:3])
+        sensors.odometry.reset(tuple(start), tuple(start + c.odometry_error))
     state_every = max(1, round(1 / (c.state_rate * world.timestep)))
     gyros: deque[tuple[float, np.ndarray]] = deque(maxlen=20)
     latest: list = []  # the newest delivered joint state: (stamp, names, q, q̇)
 
     def sense() -> None:
         """One physics step's measurements: a gyro sample, and every ``state_every`` steps a
-        joint state that arrives ``joint_latency`` later."""
+        joint state that arrives ``joint_latency`` later and the odometry's platform pose."""
         gyro, acc, _ = world.imu()
         gyros.append((world.time, sensors.imu.measure(gyro, acc, world.timestep)[0]))
         if world.steps % state_every == 0:
+            sensors.odometry.update(world.base_pose()[:3])
             names, q, qd = world.joint_state()
             q, qd = sensors.encoders.measure(q, qd)
             sensors.joint_states.push(world.time, (world.time, names, q, qd))
@@ -139,7 +148,10 @@ def run_object(
             latest[:] = [js]
 
     def control() -> None:
+        """One control step on what the robot knows: the measured joints and gyro, and the
+        platform where the odometry believes it is (without ``sensors``: the truth)."""
         x, y, yaw, vx, vy, wz = world.base_pose()
+        base, twist = (x, y, yaw), (vx, vy, wz)
         if sensors is None:
             names, q, qd = world.joint_state()
             gyro, latency = world.imu()[0], 0.0
@@ -149,8 +161,9 @@ def run_object(
                 return
             t, names, q, qd = latest[0]
             gyro, latency = nearest(gyros, t, 0.6 * world.timestep), world.time - t
+            base, twist = sensors.odometry.believed, sensors.base_velocity(vx, vy, wz)
         cmd = stab.command(
-            target, (x, y, yaw), (vx, vy, wz), dict(zip(names, q, strict=True)),
+            target, base, twist, dict(zip(names, q, strict=True)),
             dict(zip(names, qd, strict=True)), gyro, world.time, latency,
         )  # fmt: skip
         world.command_joints(list(cmd.velocity), "velocity", np.array([*cmd.velocity.values()]))

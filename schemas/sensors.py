@@ -43,7 +43,10 @@ class RgbdFrame(Stamped):
     intrinsics: CameraIntrinsics
     rgb: Annotated[np.ndarray, Array("uint8", ("h", "w", 3))] | None = None
     depth: Annotated[np.ndarray, Array("float32", ("h", "w"), description="metres")] | None = None
-    T_world_camera: Pose
+    T_world_camera: Pose = Field(
+        description="the camera's pose as the robot believes it: its kinematics of the "
+        "measured joints (joint_positions) with the platform where its odometry says"
+    )
     depth_min: float = Field(0.0, ge=0, description="closest valid depth of the sensor, m")
     depth_max: float = Field(0.0, ge=0, description="farthest valid depth of the sensor, m")
     joint_names: Annotated[list[str], Dim("j")] = Field(

@@ -48,7 +48,8 @@ class GroundTruth(Stamped):
     T_world_odom: Pose | None = Field(
         None,
         description="what the robot's odometry gets wrong: T_believed = T_world_odom · T_true "
-        "for the platform and everything on it (None with the sensor models off)",
+        "for the platform (for a frame's camera, up to the encoders' error in the joints "
+        "between; None with the sensor models off)",
     )
 
 

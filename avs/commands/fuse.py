@@ -8,9 +8,10 @@ the platform into furniture skipped), ``line`` (a sideways line through robot_st
 the roi), or a JSON file ``[[x, y], ...]`` of platform positions (each looks at the roi).
 
 With ``--noise on`` (the default) the frames carry the robot's sensor models: structured-light
-depth noise, and the camera pose the drifting odometry believes (the drift of driving from view
-to view); ``--registration on`` (the default) refines each pose against the map first (A.5).
-The indices are always scored against ground truth placed with the true camera pose, so a
+depth noise, and the camera pose the robot believes: the kinematics of its encoders' readings
+with the platform where the drifting odometry puts it (the drift of driving from view to
+view); ``--registration on`` (the default) refines each pose against the map first (A.5). The
+indices are always scored against ground truth placed with the true camera pose, so a
 misregistered view shows in them; each view reports its camera pose error after registration.
 """
 
@@ -143,7 +144,7 @@ def run_fusion(args: argparse.Namespace, progress=None):
     from services.sim import capture, ground_truth
     from services.sim.render import CameraRenderer
     from services.sim.robots import ROBOTS
-    from services.sim.sensors import Odometry
+    from services.sim.sensors import EncoderModel, Odometry
     from services.sim.world import World
 
     world = World(args.scene, ROBOTS[args.robot])
@@ -170,11 +171,12 @@ def run_fusion(args: argparse.Namespace, progress=None):
             registration=RegistrationConfig() if args.registration == "on" else None,
         )
     )
-    odometry = None
+    odometry = encoders = None
     if args.noise == "on" and bases:
         x0, y0 = bases[0]
         pose0 = (x0, y0, math.atan2(centre[1] - y0, centre[0] - x0))
         odometry = Odometry(world.robot.sensors, np.random.default_rng([args.seed, 15]), pose0)
+        encoders = EncoderModel(world.robot.sensors, np.random.default_rng([args.seed, 15, 1]))
     renderer = CameraRenderer(world.model, 640, 480)
     perception = Perception()
     rng = np.random.default_rng(args.seed) if args.noise == "on" else None
@@ -187,11 +189,14 @@ def run_fusion(args: argparse.Namespace, progress=None):
         world.place(base=base)
         world.look_at(centre)
         T_true, stamp = capture.snapshot(world, renderer, camera)
-        T = T_true
-        if odometry is not None:  # the pose the robot believes, as the sim's models give it
+        T, joints = T_true, world.joint_state()[:2]
+        if odometry is not None:  # the pose the robot believes, as the sim's models give it:
+            # its kinematics of the encoders' readings, the platform where odometry says
             driven(odometry, odometry.true, base)
-            T = odometry.T_world_odom() @ T_true
-        frame = capture.frame(world, renderer, camera, T, stamp, i, rng)
+            names, q, qd = world.joint_state()
+            joints = names, encoders.measure(q, qd)[0]
+            T = world.T_world_camera_at(camera, odometry.believed, joints)
+        frame = capture.frame(world, renderer, camera, T, stamp, i, rng, joints)
         labels, seg = capture.segmentation(world, renderer, camera)
         gt = capture.ground_truth_message(world, edges, closure, camera, labels, seg)
         memory.integrate(frame)

@@ -101,6 +101,8 @@ class SimNode:
         self.slips = 0
         self.rng = np.random.default_rng(settings.seed)
         self.sensors = self._sensors(settings.seed)
+        #: the encoders' last reading: (the step it was taken at, joint names, positions)
+        self.measured: tuple[int, list[str], np.ndarray] | None = None
         self.cameras = settings.cameras or list(self.robot.default_cameras)
         for c in self.cameras:
             self.robot.camera(c)  # raises on an unknown camera
@@ -239,6 +241,7 @@ class SimNode:
         names, q, qd = w.joint_state()
         if sensors is not None:
             q, qd = sensors.encoders.measure(q, qd)
+            self.measured = (w.steps, names, q)
         js = encode_fields(
             JointState,
             seq=self._next_seq("joints"), stamp=w.time, names=names, position=q, velocity=qd,
@@ -268,15 +271,30 @@ class SimNode:
         )
         self._sent("base")
 
+    def measured_joints(self) -> tuple[list[str], np.ndarray]:
+        """The joint positions as the encoders read them now (sensor models on; lock held):
+        the joint state measured at this step if there is one (a lockstep frame falls on the
+        state rate's grid: the frame's joints are that state's), else a reading of their
+        own."""
+        w, sensors = self.world, self.sensors
+        if self.measured is not None and self.measured[0] == w.steps:
+            return self.measured[1], self.measured[2]
+        names, q, qd = w.joint_state()
+        return names, sensors.encoders.measure(q, qd)[0]
+
     def frame(self, renderer: CameraRenderer, camera: str) -> RgbdFrame:
-        """Render one camera at the current state (render thread only)."""
+        """Render one camera at the current state (render thread only). The frame carries
+        the pose the robot believes its camera has: with the sensor models, the forward
+        kinematics of the joints as the encoders read them (the frame's ``joint_positions``)
+        with the platform where the odometry believes it is; without, the truth."""
         with self.lock:
             T, stamp = capture.snapshot(self.world, renderer, camera)
             joints = self.world.joint_state()[:2]
-            if self.sensors is not None:  # the pose the robot believes the camera has
+            if self.sensors is not None:
+                joints = self.measured_joints()
                 x, y, yaw, *_ = self.world.base_pose()
-                self.sensors.odometry.update((x, y, yaw))
-                T = self.sensors.odometry.T_world_odom() @ T
+                base = self.sensors.odometry.update((x, y, yaw))
+                T = self.world.T_world_camera_at(camera, base, joints)
         rng = self.rng if self.settings.noise else None
         return capture.frame(
             self.world, renderer, camera, T, stamp, self._next_seq(f"rgbd/{camera}"), rng, joints
@@ -383,6 +401,7 @@ class SimNode:
                 seed = request.seed if request.seed is not None else self.settings.seed
                 self.rng = np.random.default_rng(seed)
                 self.sensors = self._sensors(seed)
+                self.measured = None
                 self.seq.clear()
                 self.published.clear()
                 self.applied.clear()

@@ -147,10 +147,15 @@ class Odometry:
         self.spec, self.rng = spec, rng
         self.reset(pose)
 
-    def reset(self, pose: tuple[float, float, float]) -> None:
-        """Believe ``pose`` (the true one, e.g. at the start of an episode)."""
+    def reset(
+        self,
+        pose: tuple[float, float, float],
+        believed: tuple[float, float, float] | None = None,
+    ) -> None:
+        """The platform is at ``pose`` and the odometry believes it at ``believed`` (default:
+        ``pose``, e.g. at the start of an episode; another: a robot that drove there)."""
         self.true = tuple(map(float, pose))
-        self.believed = self.true
+        self.believed = self.true if believed is None else tuple(map(float, believed))
         self.distance = 0.0
         self.turned = 0.0
 

@@ -136,6 +136,7 @@ class World:
         self.base = BaseCommand()
         self.disturbance: Disturbance | None = None
         self._arms: dict[str, ArmKinematics] = {}
+        self._fk_data: mujoco.MjData | None = None  # T_world_camera_at's scratch state
         self._v_cmd = np.zeros(3)  # world vx, vy, yaw rate being commanded
         self._hold = np.zeros(3)
         self.steps = 0
@@ -425,4 +426,31 @@ class World:
         T = np.eye(4)
         T[:3, :3] = self.data.cam_xmat[cid].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
         T[:3, 3] = self.data.cam_xpos[cid]
+        return T
+
+    def T_world_camera_at(
+        self,
+        camera: str,
+        base: tuple[float, float, float],
+        joints: tuple[list[str], np.ndarray],
+    ) -> np.ndarray:
+        """Forward kinematics of the camera with the platform at ``base`` (x, y, yaw) and the
+        named ``joints`` at their positions (the others where they are): the pose the robot
+        believes its camera has when ``base`` is the odometry's and ``joints`` the encoders'.
+        The world's own state is untouched (a scratch copy is moved)."""
+        if self._fk_data is None:
+            self._fk_data = mujoco.MjData(self.model)
+        d = self._fk_data
+        d.qpos[:] = self.data.qpos
+        for adr, v in zip(self._base_qpos, base, strict=True):
+            d.qpos[adr] = v
+        for name, v in zip(*joints, strict=True):
+            d.qpos[self.servos[name].qpos] = v
+        mujoco.mj_kinematics(self.model, d)
+        mujoco.mj_comPos(self.model, d)
+        mujoco.mj_camlight(self.model, d)
+        cid = self.cameras[camera]
+        T = np.eye(4)
+        T[:3, :3] = d.cam_xmat[cid].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
+        T[:3, 3] = d.cam_xpos[cid]
         return T

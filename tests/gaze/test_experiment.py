@@ -94,3 +94,16 @@ def test_with_auto_exposure_the_stabilised_cup_is_localised_more_often():
     assert np.mean(on.found) == 1.0
     assert min(off.gain) < 0.95, off.gain  # the loop worked
     assert max(abs(g - 1) for g in on.gain) < 0.01, on.gain
+
+
+@pytest.mark.timeout(300)
+def test_the_stabiliser_fixates_where_the_odometry_puts_the_target():
+    """The controller takes the platform's pose from the odometry, as a robot must: with the
+    odometry believing the platform 3 cm to the left of where it stands, the stabilised camera
+    looks 3 cm beside the cup, 1.5 m ahead (1.1° measured; atan(0.03 / 1.5) = 1.15°), where
+    with a true belief it is on it (0.01°). 0.3 s of the swing."""
+    config = GazeExperimentConfig(duration=0.3)
+    right = run_object(config, "cup")
+    off = run_object(replace(config, odometry_error=(0.0, 0.03, 0.0)), "cup")
+    assert right.error_deg[-1] < 0.05, right.error_deg
+    assert off.error_deg[-1] == pytest.approx(np.degrees(np.arctan2(0.03, 1.5)), rel=0.1)

@@ -147,3 +147,57 @@ def test_the_correction_maps_the_true_camera_pose_to_the_believed_one():
     moved = sensors.odometry.T_world_odom() @ (T_true @ cam)
     assert np.allclose(moved, planar(*sensors.odometry.believed) @ cam, atol=1e-12)
     assert np.linalg.norm(moved[:3, 3] - (T_true @ cam)[:3, 3]) > 0.01  # it did drift
+
+
+def test_the_believed_camera_pose_is_the_kinematics_of_the_readings():
+    """What a frame's camera pose is with the sensor models on (``SimNode.frame``): the
+    forward kinematics of the encoders' readings with the platform where the odometry
+    believes it is. After a 1.3 m drive with the head turned it is pinocchio's kinematics of
+    those readings (to 1e-9), the odometry's drift (29 mm here) apart from the truth, and the
+    encoders' error apart from the drifted true pose: turned by the readings' error on the
+    two orthogonal neck axes, moved by at most the lift's error plus that angle times the
+    15 cm from the neck to the camera. With the true platform and joints it is the true pose
+    (1e-9)."""
+    from services.common.poses import pose_difference
+    from services.common.robots import robot_mjcf
+    from services.gaze.kinematics import GazeKinematics
+
+    world = World("tabletop_occluded", ARMAR6)
+    sensors = RobotSensors(SPEC, 3, world.base_pose()[:3])
+    head = {"torso_lift": 0.1, "neck_yaw": 0.3, "neck_pitch": -0.3}
+    world.command_joints(list(head), "position", np.array(list(head.values())))
+    world.set_base_goal(-1.0, 0.8, 0.6)
+    for _ in range(2000):  # 10 s: there and at rest
+        world.step(5)
+        sensors.odometry.update(world.base_pose()[:3])
+    assert world.base.status == "reached"
+    names, q, qd = world.joint_state()
+    truth = world.T_world_camera("head_rgbd")
+    assert np.abs(world.T_world_camera_at("head_rgbd", world.base_pose()[:3], (names, q))
+                  - truth).max() < 1e-9  # fmt: skip
+    readings = sensors.encoders.measure(q, qd)[0]
+    believed = world.T_world_camera_at("head_rgbd", sensors.odometry.believed, (names, readings))
+    kin = GazeKinematics(robot_mjcf("armar6"), ["head_rgbd"])
+    kin.update(kin.configuration(sensors.odometry.believed,
+                                 dict(zip(names, readings, strict=True))))  # fmt: skip
+    assert np.abs(kin.camera_pose("head_rgbd") - believed).max() < 1e-9
+
+    # the odometry's error alone: the platform's (1.5 % of the distance and a random walk of
+    # σ 5.7 mm here), and its heading's turning the camera's 7 cm lever
+    drifted = sensors.odometry.T_world_odom() @ truth
+    drift_m, _ = pose_difference(drifted, truth)
+    distance = sensors.odometry.distance
+    assert distance == pytest.approx(1.28, abs=0.05)
+    (bx, by, byaw), (tx, ty, tyaw) = sensors.odometry.believed, sensors.odometry.true
+    platform_m = math.hypot(bx - tx, by - ty)
+    assert 0.2 < platform_m / (SPEC.odometry_scale_error * distance) < 2, platform_m
+    lever = np.linalg.norm(truth[:2, 3] - (tx, ty))
+    assert drift_m == pytest.approx(platform_m, abs=lever * abs(byaw - tyaw) + 1e-9)
+    error = {n: readings[names.index(n)] - q[names.index(n)] for n in head}
+    assert all(0 < abs(e) < SPEC.encoder_resolution / 2 + 5 * SPEC.encoder_noise
+               for e in error.values()), error  # fmt: skip
+    moved_m, turned_deg = pose_difference(believed, drifted)
+    angle = math.hypot(error["neck_yaw"], error["neck_pitch"])
+    assert math.radians(turned_deg) == pytest.approx(angle, rel=0.01)
+    assert moved_m <= abs(error["torso_lift"]) + 0.15 * angle
+    assert pose_difference(believed, truth)[0] == pytest.approx(drift_m, abs=1e-3)

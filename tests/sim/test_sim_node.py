@@ -32,6 +32,9 @@ from schemas import (
     encode,
 )
 from schemas.export import json_schema_text
+from services.common.poses import pose_difference
+from services.common.robots import robot_mjcf
+from services.gaze.kinematics import GazeKinematics
 from tests.conftest import avs_env, liveliness_tokens, matched_publisher, wait_for
 
 KEYS = Keys()
@@ -215,6 +218,13 @@ def test_ground_truth_queryable(client, router, procs):
     assert gt.segmentation.shape == (480, 640) and gt.camera == "head_rgbd"
     seen = {gt.labels[i] for i in np.unique(gt.segmentation) if i >= 0}
     assert {"table", "box_front", "cylinder_top", "cup"} <= seen and "box_base" not in seen
+    # without the sensor models the robot believes the truth: a frame's camera pose is it
+    frames = Collector(client, KEYS.rgbd("head_rgbd"))
+    control(client, op="render")
+    wait_for(lambda: frames.count() == 1, 30, "the frame")
+    (frame,) = frames.messages(RgbdFrame)
+    assert gt.T_world_odom is None
+    assert np.abs(frame.T_world_camera - gt.T_world_camera).max() < 1e-9
 
 
 def test_recording_replays_the_same_messages_in_the_same_order(client, router, procs, tmp_path):
@@ -343,6 +353,29 @@ def test_sensor_models_over_zenoh(client, router, procs):
     assert (believed.x, believed.y) == pytest.approx((-0.8, 0.0), abs=0.02)
     drift = np.linalg.norm(gt.T_world_odom[:2, 3])
     assert 0.003 < drift < 0.03, drift  # ~1.5 % of the ~0.9 m driven
+
+    # a frame carries the camera pose the robot believes: the kinematics (pinocchio's, here)
+    # of its own joint positions, which are the joint state of its instant as the encoders
+    # read it, with the platform where the odometry's state of that instant says
+    frames = Collector(client, KEYS.rgbd("head_rgbd"))
+    control(client, op="render")
+    control(client, op="step", n=10)  # the joint state of the frame's instant comes out
+    wait_for(lambda: frames.count() == 1 and joints.count() >= 1601, 30, "the frame")
+    (frame,) = frames.messages(RgbdFrame)
+    (state,) = [s for s in joints.messages() if s.stamp == frame.stamp]
+    (odometry,) = [b for b in base.messages() if b.stamp == frame.stamp]
+    assert frame.joint_names == state.names
+    assert np.array_equal(frame.joint_positions, state.position)
+    kin = GazeKinematics(robot_mjcf("armar6"), ["head_rgbd"])
+    kin.update(kin.configuration((odometry.x, odometry.y, odometry.yaw),
+                                 dict(zip(state.names, state.position, strict=True))))  # fmt: skip
+    assert np.abs(frame.T_world_camera - kin.camera_pose("head_rgbd")).max() < 1e-9
+    # ... so it is the truth moved by the odometry's drift (gt's T_world_odom, at rest since)
+    # and turned by the encoders' error (under 0.05°: 2.3e-4 rad of resolution, 1e-4 noise)
+    drifted = gt.T_world_odom @ gt.T_world_camera
+    moved_m, turned_deg = pose_difference(frame.T_world_camera, drifted)
+    assert moved_m < 2e-4 and 0 < turned_deg < 0.05, (moved_m, turned_deg)
+    assert pose_difference(frame.T_world_camera, gt.T_world_camera)[0] > 0.003
 
 
 def test_lockstep_streams_wait_for_a_stalled_subscriber(procs, tmp_path):
