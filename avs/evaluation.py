@@ -10,9 +10,10 @@ model, or a whole episode.
   ``delta`` of its surface, inside its OBB), best over ψ, averaged;
 - support graph precision / recall / F1 (Eq. 4.14-4.16) on the edges, after mapping
   primitives to bodies (each to the body more than half of its explained points belong to).
-  Every perceived edge counts: one with an end that maps to no body, or with both ends on one
-  body, is a false positive; edges between the same two bodies count once; edges between
-  bodies outside the region of interest are not judged;
+  Every perceived edge counts: one with an end that maps to no body (wherever its other end
+  is), or with both ends on one body, is a false positive; edges between the same two bodies
+  count once; edges between two bodies one of which is outside the region of interest are not
+  judged;
 - how the primitives map: ``vertex_precision`` (share of primitives that map to a body),
   ``segments_per_body`` (over-segmentation) and ``bodies_merged`` (primitives with at least
   ``MERGED_SHARE`` of their explained points on each of two or more bodies).
@@ -204,17 +205,18 @@ def score_support(
 ) -> SupportScores:
     """Eq. 4.14-4.16 on the support edges: perceived edges (supporter id, supported id) mapped
     through ``bodies``. Every edge counts: an end that maps to no body, or both ends on one
-    body, make it a false positive. Edges whose mapped ends lie outside ``scope`` (default:
-    the ROI's bodies) are not judged, and neither are ground-truth edges outside it. With no
-    edge to find and none perceived the graph is right (1.0)."""
+    body, make it a false positive (one with an end on no body wherever its other end is).
+    Edges between two bodies of which one lies outside ``scope`` (default: the ROI's bodies)
+    are not judged, and neither are ground-truth edges outside it. With no edge to find and
+    none perceived the graph is right (1.0)."""
     scope = bodies_in_roi(gt) if scope is None else scope
     e_gt = {(a, b) for a, b in gt.support_edges if a in scope and b in scope}
     judged = set()
     for a, b in edge_names(edges, bodies):
-        named = [n for n in (a, b) if not n.startswith("#")]
-        if any(n not in scope for n in named):
+        unmapped = a.startswith("#") or b.startswith("#")
+        if not unmapped and (a not in scope or b not in scope):
             continue  # an edge of the scene outside the region of interest
-        judged.add((a, b))
+        judged.add((a, b))  # an edge from a primitive of no body is wrong wherever it ends
     tp = len(judged & e_gt)
     if not judged and not e_gt:
         precision = recall = 1.0

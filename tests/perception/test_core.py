@@ -198,9 +198,13 @@ def test_spurious_primitives_and_edges_make_precision_fall():
     assert spurious.f1 == pytest.approx(0.75)
     assert spurious.false_positives == [("#7", "#8"), ("table", "#7")]
     assert evaluation.edge_names([(0, 7)], bodies) == [("table", "#7")]
-    # edges that touch a body outside the region of interest are not judged
+    # edges between bodies one of which is outside the region of interest are not judged;
+    # an edge from a primitive of no body is judged (a false positive) wherever its other end
+    # is: the table (here outside the region) under a spurious primitive is no excuse for it
     outside = evaluation.score_support(gt, [*edges, (0, 7), (7, 1)], bodies, scope={"a", "b"})
-    assert outside.edges == [("#7", "a"), ("a", "b")]
+    assert outside.edges == [("#7", "a"), ("a", "b"), ("table", "#7")]
+    assert outside.false_positives == [("#7", "a"), ("table", "#7")]
+    assert outside.precision == pytest.approx(1 / 3) and outside.recall == 1.0
     # nothing to find and nothing found is right; something found where nothing is, is not
     empty = _gt([])
     assert evaluation.score_support(empty, [], bodies).f1 == 1.0
