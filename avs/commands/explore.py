@@ -2,7 +2,11 @@
 lockstep, perception, scene memory, nbv over a loopback Zenoh router): ``DIR/metrics.json``,
 ``f1.png``, ``unknown_voxels.png``, ``path_cost.png``, ``views_map.png`` and a self-contained
 ``report.html``. ``avs compare``: several strategies over several seeds, side by side (thesis
-Fig. 4.8, 4.11, 4.12); with several fusion modes (``--fusion pc,sg,pc+sg``) every strategy
+Fig. 4.8, 4.11, 4.12): per strategy the final views' support F1, unknown voxels and path cost
+as the median over the seeds with its 95 % bootstrap interval, and which orderings of the
+strategies the intervals support (apart) and which they leave unresolved (``avs/bootstrap.py``;
+``DIR/metrics.json``: ``runs`` per strategy, ``summary`` {median, ci95, n} per strategy and
+metric, ``orderings``); with several fusion modes (``--fusion pc,sg,pc+sg``) every strategy
 runs with each, runs are keyed ``strategy/fusion``, and ``fusion_f1.png`` / ``fusion_f1.json``
 give the support-graph F1 per view of each (median and min-max over the seeds: Fig. 4.8)."""
 
@@ -256,7 +260,9 @@ def _compare(args: argparse.Namespace) -> int:
     runs: dict[str, list[dict]] = {}
     for (k, _), result in zip(episodes, results, strict=True):
         runs.setdefault(k, []).append(result)
-    (args.out / "metrics.json").write_text(json.dumps(runs, indent=2))
+    summary, orders = summarise_runs(runs)
+    metrics = compare_json(runs, summary, orders)
+    (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     title, first = f"{args.scene}: strategies compared", ()
     if len(fusions) > 1:
         from avs import report
@@ -264,13 +270,85 @@ def _compare(args: argparse.Namespace) -> int:
         first = (report.fusion_plot(runs, args.out),)
         title = f"{args.scene}: strategies and fusion modes compared (Fig. 4.8)"
     page = write_outputs(args.out, runs, title, first)
-    for k, episodes in runs.items():
-        last = [e["views"][-1] for e in episodes if e["views"]]
-        f1 = [round(r["support_f1"], 2) for r in last]
-        print(
-            f"{k:16s} F1 {f1}  unknown {sorted(r['unknown_voxels'] for r in last)}  "
-            f"path cost {sorted(round(r['accumulated_path_cost'], 1) for r in last)}  "
-            f"views {[len(e['views']) for e in episodes]}"
-        )
+    for line in summary_lines(runs, summary, orders):
+        print(line)
     print(f"wrote {args.out / 'metrics.json'}, plots and {page}")
     return 0
+
+
+#: the final view's metrics a comparison summarises: (key in a view, name, higher is better)
+COMPARED = (
+    ("support_f1", "F1", True),
+    ("unknown_voxels", "unknown voxels", False),
+    ("accumulated_path_cost", "path cost", False),
+)
+
+
+def summarise_runs(runs: dict[str, list[dict]]) -> tuple[dict, list]:
+    """Per strategy and metric of the final views, the median over the seeds and its 95 %
+    bootstrap interval (``avs/bootstrap.py``); and every pair of strategies per metric, the
+    better median first, with whether the intervals support that ordering."""
+    from avs.bootstrap import median_interval, orderings
+
+    summary: dict[str, dict] = {}
+    for k, episodes in runs.items():
+        last = [e["views"][-1] for e in episodes if e["views"]]
+        if last:
+            summary[k] = {key: median_interval([v[key] for v in last]) for key, *_ in COMPARED}
+    orders = [
+        o
+        for key, _, higher in COMPARED
+        for o in orderings(key, {k: m[key] for k, m in summary.items()}, higher)
+    ]
+    return summary, orders
+
+
+def compare_json(runs: dict[str, list[dict]], summary: dict, orders: list) -> dict:
+    """``avs compare``'s metrics.json: every episode (``runs``, keyed by strategy, or
+    strategy/fusion), the ``summary`` per key and metric ({median, ci95: [lo, hi], n}) and
+    the ``orderings`` with whether the intervals support them."""
+    from avs.bootstrap import RESAMPLES, SEED
+
+    return {
+        "runs": runs,
+        "summary": {k: {key: iv.to_json() for key, iv in m.items()} for k, m in summary.items()},
+        "orderings": [o.to_json() for o in orders],
+        "bootstrap": {"statistic": "median", "confidence": 0.95, "resamples": RESAMPLES,
+                      "seed": SEED, "method": "percentile"},
+    }  # fmt: skip
+
+
+def summary_lines(runs: dict[str, list[dict]], summary: dict, orders: list) -> list[str]:
+    """The console's summary: each metric's median and 95 % interval per key, then which
+    orderings the intervals support and which they leave unresolved."""
+    n = sorted({iv.n for m in summary.values() for iv in m.values()})
+    lines = [f"final views, median [95 % bootstrap interval of the median] over "
+             f"{'/'.join(map(str, n))} seeds:"]  # fmt: skip
+    formats = {"support_f1": "{:.2f}", "unknown_voxels": "{:.0f}",
+               "accumulated_path_cost": "{:.1f}"}  # fmt: skip
+    units = {"accumulated_path_cost": " s"}
+    for k, m in summary.items():
+        parts = []
+        for key, name, _ in COMPARED:
+            f, iv, unit = formats[key], m[key], units.get(key, "")
+            parts.append(f"{name} {f.format(iv.median)}{unit} "
+                         f"[{f.format(iv.lo)}, {f.format(iv.hi)}]")  # fmt: skip
+        lines.append(f"{k:16s} " + "  ".join(parts)
+                     + f"  views {[len(e['views']) for e in runs[k]]}")  # fmt: skip
+    from avs.bootstrap import MIN_VALUES
+
+    names = {key: (name, higher) for key, name, higher in COMPARED}
+    unresolved = "not resolved (intervals overlap"
+    if n and n[0] < MIN_VALUES:
+        unresolved += f", or under {MIN_VALUES} seeds"
+    for supported, title in ((True, "supported (intervals apart)"), (False, unresolved + ")")):
+        said = []
+        for o in orders:
+            if o.supported != supported:
+                continue
+            name, higher = names[o.metric]
+            equal = summary[o.better][o.metric].median == summary[o.worse][o.metric].median
+            sign = "=" if equal else (">" if higher else "<")
+            said.append(f"{name}: {o.better} {sign} {o.worse}")
+        lines.append(f"{title}: " + ("; ".join(said) if said else "none"))
+    return lines

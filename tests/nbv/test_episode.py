@@ -65,7 +65,7 @@ def test_booth_occupancy_sees_most_and_utility_travels_least(tmp_path):
          "--seeds", "3", "--views", "5", "--voxel", "0.02", "--jobs", "2", "--out", str(tmp_path)],
         timeout=1500,
     )  # fmt: skip
-    runs = json.loads((tmp_path / "metrics.json").read_text())
+    runs = json.loads((tmp_path / "metrics.json").read_text())["runs"]
     assert set(runs) == {"utility", "occupancy", "random"}
     unknown, cost = {}, {}
     for strategy, episodes in runs.items():
@@ -97,8 +97,16 @@ def test_compare_fusion_modes_keys_runs_strategy_slash_fusion_and_plots_f1_per_v
          "--out", str(tmp_path)],
         timeout=300,
     )  # fmt: skip
-    runs = json.loads((tmp_path / "metrics.json").read_text())
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    runs = metrics["runs"]
     assert list(runs) == ["random/sg", "random/pc"]
+    # one seed: each median is its episode's, with nothing to resample
+    for k in runs:
+        f1 = runs[k][0]["views"][-1]["support_f1"]
+        assert metrics["summary"][k]["support_f1"] == {"median": f1, "ci95": [f1, f1], "n": 1}
+    metrics_compared = {"support_f1", "unknown_voxels", "accumulated_path_cost"}
+    assert {o["metric"] for o in metrics["orderings"]} == metrics_compared
+    assert "95 % bootstrap interval" in out.stdout and "not resolved" in out.stdout
     assert [e["fusion"] for k in runs for e in runs[k]] == ["sg", "pc"]
     assert all(len(e["views"]) == 2 for k in runs for e in runs[k])
     assert (tmp_path / "random-sg-0" / "floor.png").is_file()
