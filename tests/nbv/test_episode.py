@@ -45,8 +45,9 @@ def test_tabletop_occluded_support_graph_complete_by_view_5_and_ends_by_itself(t
     cost = [v["accumulated_path_cost"] for v in views]
     assert cost[0] == 0 and all(b >= a for a, b in pairwise(cost))
     assert np.allclose(views[0]["base"], [0, 0, 0], atol=0.02)  # the first view: robot_start
-    # the sensor models drift the odometry (54 mm after 4 views measured unregistered); the
-    # scene memory's registration keeps the camera pose the map uses within 17 mm
+    # the sensor models drift the odometry (the frames' believed poses 48 mm and 0.59° off the
+    # truth at the 4th view measured); the scene memory's registration brings the pose the
+    # map uses to 17.6 mm and 0.79° there (seed 0; 5.0, 3.6 and 3.8 mm with seeds 1-3)
     assert all(v["registration"] == "accepted" for v in views), views
     assert views[-1]["pose_error_m"] < 0.03 and views[-1]["pose_error_deg"] < 1.0, views[-1]
     page = (tmp_path / "report.html").read_text()
