@@ -64,6 +64,7 @@ PROVENANCE = re.compile(
 REFERENCE_TABLES = (
     "| service | thesis | consumes | produces |",
     "| key | message | rate / kind |",
+    "| script | ours | peer | like for like |",
 )
 
 #: thesis Table 5.1 (ARMAR-III, grasping on the move): the decrease of the optical-flow error's

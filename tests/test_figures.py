@@ -154,7 +154,6 @@ def test_unknown_broken_and_doubled_blocks_fail(tmp_path, capsys):
     assert not (tmp_path / "out").exists() and readme.read_text() == unknown
 
 
-@pytest.mark.xfail(strict=True, reason="README not yet in figure blocks (the lead converts it)")
 def test_every_measured_table_of_the_readme_is_in_a_figure_block():
     loose = loose_tables((ROOT / "README.md").read_text())
     assert not loose, "measured tables outside figure blocks (line, header):\n" + "\n".join(
