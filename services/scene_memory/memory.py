@@ -246,7 +246,7 @@ class SceneMemory:
         self.T_world_odom = result.T_world_camera @ np.linalg.inv(T_odom)
         return result.T_world_camera, True
 
-    def registering(self, frame: RgbdFrame) -> bool:
+    def will_register(self, frame: RgbdFrame) -> bool:
         """Whether integrating ``frame`` would register it (and so may move ``T_world_odom``):
         registration on, a cloud to register against, and its time come."""
         return (

@@ -194,7 +194,7 @@ class SceneMemoryNode:
             # observations of this frame or later wait for its registration only where it is
             # registered (every registration_interval): otherwise the correction they take is
             # the one in force already
-            if kind == "frame" and self.memory.registering(message):
+            if kind == "frame" and self.memory.will_register(message):
                 with self.registered:
                     self.registering = message.seq
             try:

@@ -422,11 +422,7 @@ class World:
 
     def T_world_camera(self, camera: str) -> np.ndarray:
         """Pose of the camera's optical frame (x right, y down, z forward) in the world."""
-        cid = self.cameras[camera]
-        T = np.eye(4)
-        T[:3, :3] = self.data.cam_xmat[cid].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
-        T[:3, 3] = self.data.cam_xpos[cid]
-        return T
+        return _optical_pose(self.data, self.cameras[camera])
 
     def T_world_camera_at(
         self,
@@ -449,8 +445,13 @@ class World:
         mujoco.mj_kinematics(self.model, d)
         mujoco.mj_comPos(self.model, d)
         mujoco.mj_camlight(self.model, d)
-        cid = self.cameras[camera]
-        T = np.eye(4)
-        T[:3, :3] = d.cam_xmat[cid].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
-        T[:3, 3] = d.cam_xpos[cid]
-        return T
+        return _optical_pose(d, self.cameras[camera])
+
+
+def _optical_pose(data: mujoco.MjData, camera_id: int) -> np.ndarray:
+    """The optical frame (x right, y down, z forward) of camera ``camera_id`` in ``data``'s
+    world (MuJoCo's camera looks along −z with y up)."""
+    T = np.eye(4)
+    T[:3, :3] = data.cam_xmat[camera_id].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
+    T[:3, 3] = data.cam_xpos[camera_id]
+    return T

@@ -72,15 +72,15 @@ def test_only_a_frame_that_will_be_registered_holds_up_observations(updates):
     on = SceneMemory(
         MemoryConfig(**box, registration=RegistrationConfig(), registration_interval=0.5)
     )
-    assert not on.registering(first)  # nothing to align to yet: the first frame is the map
+    assert not on.will_register(first)  # nothing to align to yet: the first frame is the map
     on.integrate(first)
     off.integrate(first)
-    assert not off.registering(later)
-    assert on.registering(later)  # the first registration
+    assert not off.will_register(later)
+    assert on.will_register(later)  # the first registration
     on.integrate(later)
     soon = later.model_copy(update={"seq": later.seq + 1, "stamp": later.stamp + 0.2})
     due = later.model_copy(update={"seq": later.seq + 2, "stamp": later.stamp + 0.6})
-    assert not on.registering(soon) and on.registering(due)
+    assert not on.will_register(soon) and on.will_register(due)
 
 
 def test_observations_that_waited_are_fused_and_published_as_one_model(memory, updates):
