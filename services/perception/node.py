@@ -5,12 +5,13 @@ rendezvous hashing of (camera, seq) over the live instances' liveliness tokens p
 (services/common/membership.py); the others skip it. An instance joining or leaving moves only
 the frames it wins or held. Each worker keeps at most ``queue`` of its frames waiting: when it
 falls behind, the oldest is dropped as stale, counted, so it never works on old frames.
-With ``max_rate`` a worker perceives at most that many frames a second, the newest each time
-(``avs up`` runs it at 2: at 15 fps it and the fusion of its observations would leave the map
-no time on 2 cores); a newer frame replaces a waiting one, which is counted as dropped for
-``rate`` (by design: no warning). A frame without depth, or larger than ``max_pixels``, is
-dropped and counted; an empty or all-invalid frame gives an observation with no primitives.
-Observations carry the worker.
+With ``max_rate`` a worker perceives at most that many frames a second (``avs up`` runs it at
+6: at 15 fps it and the fusion of its observations would leave the map no time on 2 cores),
+each the first to arrive once its time has come (``pacing.py``: not the newest waiting one,
+which could be a camera period old); a newer frame replaces a waiting one, which is counted as
+dropped for ``rate`` (by design: no warning). A frame without depth, or larger than
+``max_pixels``, is dropped and counted; an empty or all-invalid frame gives an observation
+with no primitives. Observations carry the worker.
 A frame that carries the robot's joint positions has the robot's own body masked out first
 (``self_mask.py``), so the robot never perceives its arms and hands as scene primitives.
 
@@ -23,7 +24,6 @@ the same way, shared and queued with the frames, by the point-set pipeline
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from collections import deque
@@ -38,6 +38,7 @@ from services.common.node import Node
 from services.common.realtime import foreground
 from services.common.robots import robot_mjcf
 from services.perception.config import PerceptionSettings
+from services.perception.pacing import Pacer
 from services.perception.pipeline import (
     Perception,
     PerceptionConfig,
@@ -66,7 +67,8 @@ class PerceptionNode:
         self.key = node.keys.rgbd(settings.camera)
         self.members = Members(node.session, node.keys.alive("perception"), node.instance)
         self.cloud_key = node.keys.cloud_frame(settings.camera)
-        self.pending: deque[RgbdFrame | CloudFrame] = deque()
+        self.pending: deque[tuple[float, RgbdFrame | CloudFrame]] = deque()  # (arrival, frame)
+        self.pacer = Pacer(settings.max_rate) if settings.max_rate > 0 else None
         self.ready = threading.Condition()
         self.skipped = 0
         self.body: RobotBody | None = None
@@ -89,30 +91,39 @@ class PerceptionNode:
         """Queue a frame of this worker's."""
         if not self.members.owns(f"{frame.camera}:{frame.seq}"):
             return
+        arrived = time.monotonic()
         with self.ready:
-            if self.settings.max_rate > 0:  # only the newest is ever taken: it replaces the rest
+            if self.pacer is not None:  # only the newest is ever taken: it replaces the rest
+                self.pacer.arrived(arrived)
                 while self.pending:
                     self.pending.popleft()
                     self.node.metrics.drop("rate")
             elif len(self.pending) >= self.settings.queue:
-                stale = self.pending.popleft()
+                _, stale = self.pending.popleft()
                 self.node.drop("stale", self.key, f"frame {stale.seq} waited too long")
-            self.pending.append(frame)
+            self.pending.append((arrived, frame))
             self.ready.notify()
 
     def work(self) -> None:
         if self.settings.realtime:
             foreground("perception's worker")
-        interval = 1.0 / self.settings.max_rate if self.settings.max_rate > 0 else 0.0
-        began = -math.inf
+        pacer = self.pacer
         while not self.node.stopping:
-            if interval:  # at most max_rate frames a second: wait for the next one's time
-                time.sleep(max(0.0, began + interval - time.monotonic()))
+            if pacer is not None:  # at most max_rate frames a second: wait for the next slot
+                time.sleep(max(0.0, pacer.slot - time.monotonic()))
             with self.ready:
+                if pacer is not None:  # the first frame from the slot on, if one comes soon
+                    deadline = time.monotonic() + pacer.patience()
+                    while not (self.pending and pacer.fresh(self.pending[-1][0])):
+                        left = deadline - time.monotonic()
+                        if left <= 0 or self.node.stopping:
+                            break
+                        self.ready.wait(left)
                 if not self.pending and not self.ready.wait(0.2):
                     continue
-                frame = self.pending.popleft()
-            began = time.monotonic()
+                _, frame = self.pending.popleft()
+            if pacer is not None:
+                pacer.took(time.monotonic())
             is_cloud = isinstance(frame, CloudFrame)
             try:
                 self.on_cloud(frame) if is_cloud else self.on_frame(frame)
