@@ -3,8 +3,9 @@ cannot drift: each service may publish only the keys it produces, serve only its
 declare only its own liveliness token; the ``observer`` identity may subscribe to everything,
 query what only reads (metrics, scene memory, ground truth) and publish nothing; the
 ``operator`` identity (the command line and the episode driver: up, explore, echo…) may do
-anything under ``avs/``, and it alone may query ``sim/control`` (a service may ask any other
-queryable, never to step, reset or pause the sim).
+anything under ``avs/``, and it alone may query ``sim/control`` and ``explore/control`` (a
+service may ask any other queryable, never to step, reset or pause the sim, nor to start or
+stop an exploration).
 
 ``python -m avs.acl deploy/zenoh`` writes the router configurations compose.yaml mounts,
 ``router-tcp.json5`` and ``router-tls.json5`` (``tests/test_acl.py`` checks the shipped ones are
@@ -26,12 +27,15 @@ from schemas.keys import KEY_TABLE
 
 ANY = "avs/*/"  # every robot
 #: keys a service produces beyond the table's producer column
-EXTRA_PUBLISHES = {"nbv": ["cmd/head"]}  # the head joints of a chosen view (nbv/plan execute)
+EXTRA_PUBLISHES = {
+    "nbv": ["cmd/head"],  # the head joints of a chosen view (nbv/plan execute)
+    "explorer": ["cmd/base", "gaze/target"],  # a halt; the view's target for the gaze to hold
+}
 #: what the observer may query: queryables that only read
 READ_ONLY = ["metrics/**", "memory/**", "sim/ground_truth"]
 OBSERVER, OPERATOR = "observer", "operator"
 #: queryables only the operator may ask
-OPERATOR_ONLY = ["sim/control"]
+OPERATOR_ONLY = ["sim/control", "explore/control"]
 
 
 def _keys(patterns: list[str]) -> list[str]:

@@ -19,6 +19,7 @@ from avs.commands import (
     run,
     scene,
     schema,
+    score,
     sim,
     status,
     up,
@@ -45,6 +46,7 @@ COMMANDS = (
     view,
     replay_bag,
     schema,
+    score,
     warm_up,
 )
 

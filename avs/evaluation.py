@@ -226,3 +226,26 @@ def score_support(
     f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
     vertices = sorted({b for b in bodies.values() if b in scope})
     return SupportScores(precision, recall, f1, sorted(judged), vertices, sorted(judged - e_gt))
+
+
+def label_by_boxes(
+    gt: GroundTruth, points: np.ndarray, margin: float = OBB_MARGIN
+) -> dict[str, np.ndarray]:
+    """Labelled ground-truth points from a world cloud (a running scene memory's registered
+    cloud, for an outside evaluator that saw none of the frames): each point goes to the
+    smallest ground-truth body whose box, grown by ``margin``, holds it (an object on a shelf
+    board lies inside the shelf's box too), none to points in no box (the floor, walls of no
+    body). Where a segmented frame is at hand, ``labelled_points`` is exact; this is as good
+    as the boxes are tight (boxes, cylinders, spheres: their own; compounds: their bounds)."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    best = np.full(len(points), -1)
+    volume = np.full(len(points), np.inf)
+    bodies = [o for o in gt.objects if o.name != "robot"]
+    for i, o in enumerate(bodies):
+        R, c = np.asarray(o.pose)[:3, :3], np.asarray(o.pose)[:3, 3]
+        local = (points - c) @ R
+        inside = np.all(np.abs(local) <= np.asarray(o.size) / 2 + margin, axis=1)
+        v = float(np.prod(np.asarray(o.size) + 2 * margin))
+        take = inside & (v < volume)
+        best[take], volume[take] = i, v
+    return {o.name: points[best == i] for i, o in enumerate(bodies) if np.any(best == i)}

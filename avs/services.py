@@ -42,6 +42,7 @@ SERVICES: tuple[ServiceInfo, ...] = (
     ),
     ServiceInfo("nbv", "next-best-view: sampling, information gain, path cost, utility", True),
     ServiceInfo("gaze", "ego-sphere view selection and gaze stabilisation"),
+    ServiceInfo("explorer", "the active-vision loop: plan, move, settle, capture, decide"),
 )
 
 BY_NAME = {s.name: s for s in SERVICES}

@@ -8,6 +8,7 @@ key expressions of SPEC §1.
 from schemas.base import REGISTRY, Message, Model, Stamped
 from schemas.codec import ERROR_KINDS, CodecError, decode, encode, encode_fields
 from schemas.commands import ArmCommand, BaseGoal, BaseVelocity, HeadCommand
+from schemas.explore import ExploreControl, ExploreStatus
 from schemas.gaze import EgoSphereSnapshot, GazeTarget
 from schemas.keys import DEFAULT_ROBOT, KEY_TABLE, Keys, KeySpec, spec_for
 from schemas.occupancy import BoxQuery, OccupancySlice, OccupancyStats
@@ -62,6 +63,8 @@ __all__ = [
     "CodecError",
     "CylinderModel",
     "EgoSphereSnapshot",
+    "ExploreControl",
+    "ExploreStatus",
     "GainRequest",
     "Gains",
     "GazeTarget",

@@ -65,6 +65,8 @@ KEY_TABLE: tuple[KeySpec, ...] = (
     KeySpec("nbv/gain/*", ("GainRequest", "Gains"), "queryable", "nbv", note="queryable: a share of the candidates"),
     KeySpec("gaze/target", ("GazeTarget",), "command", "nbv", "block", "interactive_high", False, "on demand"),
     KeySpec("gaze/egosphere", ("EgoSphereSnapshot",), "stream", "gaze", "drop", "data_low", False, "2-10 Hz"),
+    KeySpec("explore/status", ("ExploreStatus",), "stream", "explorer", "block", "interactive_low", False, "on change"),
+    KeySpec("explore/control", ("ExploreControl", "ExploreStatus"), "queryable", "explorer", note="queryable, operator only"),
     KeySpec("sim/ground_truth", ("GroundTruthQuery", "GroundTruth"), "queryable", "sim", note="queryable"),
     KeySpec("sim/control", ("SimControl", "SimStatus"), "queryable", "sim", note="queryable"),
     KeySpec("alive/*/*", (), "liveliness", "every service", note="liveliness token"),
@@ -153,6 +155,12 @@ class Keys:
 
     def egosphere(self) -> str:
         return self.key("gaze/egosphere")
+
+    def explore_status(self) -> str:
+        return self.key("explore/status")
+
+    def explore_control(self) -> str:
+        return self.key("explore/control")
 
     def ground_truth(self) -> str:
         return self.key("sim/ground_truth")

@@ -39,6 +39,11 @@ class OccupancyStats(Stamped):
     frames_skipped: int = Field(
         0, ge=0, description="depth frames not integrated: the camera had not moved (keyframes)"
     )
+    frame_seq: int | None = Field(
+        None,
+        description="seq of the newest depth frame the map took: integrated, or skipped as not "
+        "a keyframe (None: none since this scene memory started)",
+    )
     realised_volume: int = Field(
         0, description="unknown voxels of the scene's roi the last integrated frame made known"
     )

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from schemas.arrays import Array, Dim
 from schemas.base import Message, Stamped
@@ -78,13 +78,20 @@ class Gains(Message):
 #: the largest step number and number of visited poses a plan request may carry
 MAX_PLAN_STEP = 100_000
 MAX_VISITED = 10_000
+MAX_CENTRES = 100
+#: m: a candidate view whose platform pose is this close to an excluded one is not planned
+EXCLUDED_RADIUS = 0.25
 
 
 class PlanRequest(Message):
     """A request on ``nbv/plan``: plan step ``step`` from the robot's current pose. ``initial``
     only aims the head at the view-sphere centre from where the robot stands (the first view);
     ``visited`` are the platform poses of the views taken so far (for the top-down sampling's
-    largest arc); with ``execute`` the planner also sends the BaseGoal and the HeadCommand."""
+    largest arc); with ``execute`` the planner also sends the BaseGoal and the HeadCommand;
+    ``excluded``: goals the platform could not reach, not planned again; ``centres`` and the
+    roi, where given, replace the planner's settings (the explorer's scene: an episode's
+    facts travel with its requests). An ``initial`` request begins an episode: λ_quality's
+    reference, the first step's best gain, is taken anew."""
 
     step: int = Field(0, ge=0, le=MAX_PLAN_STEP)
     initial: bool = False
@@ -93,7 +100,38 @@ class PlanRequest(Message):
         default_factory=lambda: np.zeros((0, 3))
     )
 
-    @field_validator("visited")
+    excluded: Annotated[np.ndarray, Array("float64", (None, 3)), Finite()] = Field(
+        default_factory=lambda: np.zeros((0, 3)),
+        description="platform poses (x, y, yaw) not to plan a view from: goals the platform "
+        "did not reach (a candidate within EXCLUDED_RADIUS of one is unreachable)",
+    )
+
+    centres: Annotated[np.ndarray, Array("float64", (None, 3)), Finite()] = Field(
+        default_factory=lambda: np.zeros((0, 3)),
+        description="view-sphere centres of this plan, the first one the initial view's "
+        "target (empty: the planner's settings)",
+    )
+    roi_min: Vec3 | None = Field(
+        None, description="the box whose unknown voxels IG counts (None: the planner's settings)"
+    )
+    roi_max: Vec3 | None = None
+
+    @field_validator("centres")
+    @classmethod
+    def _few_centres(cls, v: np.ndarray) -> np.ndarray:
+        if len(v) > MAX_CENTRES:
+            raise ValueError(f"{len(v)} view-sphere centres: at most MAX_CENTRES={MAX_CENTRES}")
+        return v
+
+    @model_validator(mode="after")
+    def _roi_whole(self) -> PlanRequest:
+        if (self.roi_min is None) != (self.roi_max is None):
+            raise ValueError("roi_min and roi_max come together")
+        if self.roi_min is not None and not (self.roi_min < self.roi_max).all():
+            raise ValueError("roi_min must be below roi_max on every axis")
+        return self
+
+    @field_validator("visited", "excluded")
     @classmethod
     def _few_visited(cls, v: np.ndarray) -> np.ndarray:
         if len(v) > MAX_VISITED:

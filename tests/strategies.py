@@ -20,7 +20,14 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 from pydantic import BaseModel
 
-from schemas import ArmCommand, RgbdFrame, SceneGraph, SimControl
+from schemas import (
+    ArmCommand,
+    ExploreControl,
+    PlanRequest,
+    RgbdFrame,
+    SceneGraph,
+    SimControl,
+)
 from schemas.arrays import Array, Dim
 from schemas.base import field_metadata
 from schemas.occupancy import BoxQuery
@@ -186,6 +193,18 @@ def _fix_box(draw, values: dict, dims: dict) -> None:
     values["box_min"], values["box_max"] = np.minimum(lo, hi), np.maximum(lo, hi)
 
 
+def _fix_roi(draw, values: dict, dims: dict) -> None:
+    """An roi comes whole (both corners or neither), its min below its max."""
+    lo, hi = values.get("roi_min"), values.get("roi_max")
+    if lo is None or hi is None:
+        values.pop("roi_min", None)
+        values.pop("roi_max", None)
+        return
+    lo, hi = np.minimum(lo, hi), np.maximum(lo, hi)
+    same = lo >= hi
+    values["roi_min"], values["roi_max"] = np.where(same, 0.0, lo), np.where(same, 1.0, hi)
+
+
 def _fix_sim_control(draw, values: dict, dims: dict) -> None:
     if values.get("op") == "set_disturbance" and not values.get("joint"):
         values["joint"] = "hip_yaw"
@@ -206,6 +225,8 @@ FIXUPS: dict[type, Callable[[Any, dict, dict], None]] = {
     SceneGraph: _fix_scene_graph,
     BoxQuery: _fix_box,
     SimControl: _fix_sim_control,
+    ExploreControl: _fix_roi,
+    PlanRequest: _fix_roi,
 }
 
 _cache: dict[type, st.SearchStrategy] = {}

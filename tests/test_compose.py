@@ -16,6 +16,7 @@ import yaml
 import zenoh
 
 from avs.services import BY_NAME, existing
+from schemas import decode
 from tests.conftest import ROOT, wait_for
 
 COMPOSE = yaml.safe_load((ROOT / "compose.yaml").read_text())
@@ -256,7 +257,7 @@ def _seqs(seen) -> list[int]:
 
 @pytest.mark.timeout(300)
 def test_live_every_container_turns_healthy(stack):
-    services = ["sim", "perception", "perception", "scene_memory", "nbv", "gaze"]
+    services = ["sim", "perception", "perception", "scene_memory", "nbv", "gaze", "explorer"]
 
     def health() -> dict[str, str]:
         return {c.name: c.attrs["State"].get("Health", {}).get("Status") for c in
@@ -267,6 +268,46 @@ def test_live_every_container_turns_healthy(stack):
     names = sorted(c.labels["com.docker.compose.service"] for c in stack.containers())
     assert names == sorted(["router", *services])
     print(f"all healthy {time.monotonic() - stack.t_up:.0f} s after compose up")
+
+
+@pytest.mark.timeout(420)
+def test_live_the_stack_explores_by_itself_and_only_the_operator_may_stop_it(stack):
+    """``docker compose up`` explores: the explorer starts by itself in the roi the sim's scene
+    declares; from outside (observer identity: it only reads) the support graph is found
+    (F1 ≥ 0.9, ``avs score``'s evaluation) within 240 s of the start. Then the operator starts
+    an episode; the observer's stop is refused at the router (the episode goes on), the
+    operator's stops it."""
+    from avs.commands.score import score
+    from schemas import ExploreControl, ExploreStatus, encode
+    from tests.docker_stack import KEYS, query
+
+    statuses: list[ExploreStatus] = []
+    with stack.session("observer") as observer:
+        sub = observer.declare_subscriber(
+            KEYS.explore_status(),
+            lambda s: statuses.append(decode(s.payload.to_bytes(), ExploreStatus)),
+        )
+        wait_for(lambda: statuses and statuses[-1].phase == "done", 240 + stack.t_up
+                 - time.monotonic(), "the episode's end", lambda: statuses[-1:])  # fmt: skip
+        took = time.monotonic() - stack.t_up
+        result = score(observer, KEYS, 30.0)
+        print(f"explored by itself: {statuses[-1].reason} after {statuses[-1].view} views, "
+              f"{took:.0f} s after compose up; support F1 {result['support_f1']:.2f}")  # fmt: skip
+        assert statuses[-1].reason in ("quality", "max_views"), statuses[-1]
+        assert result["support_f1"] >= 0.9, result
+        with stack.session("operator") as operator:
+            start = query(operator, KEYS.explore_control(), ExploreStatus,
+                          encode(ExploreControl(op="start")))  # fmt: skip
+            assert start is not None and start.ok and start.episode == 2, start
+            wait_for(lambda: statuses[-1].episode == 2 and statuses[-1].phase != "plan", 120,
+                     "the second episode under way")  # fmt: skip
+            stop = encode(ExploreControl(op="stop"))
+            assert query(observer, KEYS.explore_control(), ExploreStatus, stop) is None
+            time.sleep(1)
+            assert statuses[-1].episode == 2 and statuses[-1].reason != "stopped"
+            stopped = query(operator, KEYS.explore_control(), ExploreStatus, stop)
+            assert stopped is not None and (stopped.phase, stopped.reason) == ("done", "stopped")
+        sub.undeclare()
 
 
 @pytest.mark.timeout(120)

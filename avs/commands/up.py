@@ -21,6 +21,8 @@ import signal
 import threading
 from pathlib import Path
 
+import numpy as np
+
 from avs.commands._args import positive_float
 from avs.launcher import HUNG_AFTER_S, Supervisor
 from avs.router import DEFAULT_ENDPOINT, RouterError
@@ -36,6 +38,8 @@ log = logging.getLogger("avs.up")
 #: uncapped, perception took 11 a second, which the fusion could not keep up with, and the
 #: semantic model fell seconds behind
 LIVE_PERCEPTION_RATE = 6.0
+#: the sim's scene when ``--scene`` is not given (services/sim/config.py's default)
+DEFAULT_SCENE = "tabletop_occluded"
 
 
 def add_system_arguments(parser: argparse.ArgumentParser) -> None:
@@ -95,6 +99,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         "tabletop_occluded; overrides AVS_SIM_SCENE)",
     )  # fmt: skip
     parser.add_argument(
+        "--explore", action="store_true",
+        help="explore by itself: the explorer starts an episode in the scene's roi once the "
+        "services are up (the planner and scene memory get the scene's roi, view-sphere "
+        "centres and map bounds); explore/status says what it does",
+    )  # fmt: skip
+    parser.add_argument(
+        "--views", type=int, default=10, metavar="N",
+        help="with --explore: views an episode takes at most (default 10)",
+    )  # fmt: skip
+    parser.add_argument(
         "--noise", choices=["on", "off"], default="on",
         help="the sim's sensor models (depth noise, gyro, encoders, latency, odometry drift) "
         "and the scene memory's view registration, or the simulator's truth (AVS_SIM_NOISE, "
@@ -140,12 +154,48 @@ def service_env(args: argparse.Namespace) -> dict[str, str]:
         else {"AVS_PERCEPTION_MAX_RATE": f"{LIVE_PERCEPTION_RATE:g}"}
     )
     scene = {"AVS_SIM_SCENE": args.scene} if getattr(args, "scene", None) else {}
+    explore = {}
+    if getattr(args, "explore", False):
+        chosen = args.scene or os.environ.get("AVS_SIM_SCENE") or DEFAULT_SCENE
+        explore = explore_env(chosen, args.robot, args.views)
     return (
         noise
         | rate
         | scene
+        | explore
         | {"AVS_SCENE_MEMORY_DATA_DIR": str(Path(args.data_dir) / "scene_memory")}
     )
+
+
+def explore_env(scene: str, robot: str, views: int) -> dict[str, str]:
+    """What the services need to know of the scene to explore it on their own (the settings
+    ``avs explore`` hands them too): the roi whose unknown voxels count, the view spheres'
+    centres, where the platform may go, the map's bounds; the explorer starts by itself."""
+    from avs.explore import scene_facts
+
+    try:
+        facts = scene_facts(scene, robot)
+    except Exception as e:  # a wrong scene file names its problem
+        raise SystemExit(f"avs: --explore: the scene {scene!r}: {e}") from None
+    csv = lambda v: ",".join(f"{x:.4f}" for x in np.ravel(v))  # noqa: E731
+    roi = {"MIN": csv(facts.roi_min), "MAX": csv(facts.roi_max)}
+    env = {
+        "AVS_EXPLORER_AUTOSTART": "true",
+        "AVS_EXPLORER_VIEWS": str(views),
+        "AVS_NBV_CENTRE": csv(facts.centres),
+        "AVS_NBV_FIRST_TARGET": csv(facts.centre),
+        # the explorer counts the views (a goal abandoned takes a step and no view)
+        "AVS_NBV_MAX_VIEWS": "1000",
+        "AVS_SCENE_MEMORY_BOUNDS_MIN": csv(facts.map_min),
+        "AVS_SCENE_MEMORY_BOUNDS_MAX": csv(facts.map_max),
+    }
+    for side, value in roi.items():
+        for service in ("EXPLORER", "NBV", "SCENE_MEMORY"):
+            env[f"AVS_{service}_ROI_{side}"] = value
+    if facts.workspace is not None:
+        env["AVS_NBV_WORKSPACE_MIN"] = csv(facts.workspace[0][:2])
+        env["AVS_NBV_WORKSPACE_MAX"] = csv(facts.workspace[1][:2])
+    return {k: v for k, v in env.items() if k not in os.environ}
 
 
 def chosen_services(names: str) -> list[ServiceInfo]:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -73,6 +74,7 @@ class NbvNode:
         self.planner = build_planner(settings)
         self.planner.warm_up()  # the kernels now, not in the first step of an episode
         self.lock = threading.Lock()
+        self.request_centres: np.ndarray | None = None  # the plan request's, over the settings
         self.base: BasePose | None = None
         self.T_world_odom: np.ndarray | None = None  # memory/pose_correction
         k = node.keys
@@ -177,6 +179,8 @@ class NbvNode:
     def centres(self, piece: OccupancySlice | None) -> np.ndarray:
         """The view spheres' centres (m, 3): the settings' (a scene's points of interest), or
         the map's middle at 0.9 m."""
+        if self.request_centres is not None:
+            return self.request_centres
         if self.s.centre:
             return np.array(self.s.centre, float).reshape(-1, 3)
         if piece is None:
@@ -185,6 +189,8 @@ class NbvNode:
         return np.array([[mid[0], mid[1], 0.9]])
 
     def first_target(self) -> np.ndarray:
+        if self.request_centres is not None:
+            return self.request_centres[0]
         if self.s.first_target:
             return np.array(self.s.first_target, float)
         return self.centres(None)[0]
@@ -221,9 +227,20 @@ class NbvNode:
         self.out_next.put(reply)
         return reply
 
+    def _scene(self, request: PlanRequest) -> None:
+        """The episode's facts a request carries (roi, view-sphere centres) over the settings;
+        an initial request begins an episode (λ_quality's reference taken anew)."""
+        self.request_centres = request.centres if len(request.centres) else None
+        if request.roi_min is not None:
+            roi = (np.asarray(request.roi_min, float), np.asarray(request.roi_max, float))
+            self.planner.config = replace(self.planner.config, roi=roi)
+        if request.initial:
+            self.planner.first_gain = None
+
     def _plan(self, request: PlanRequest) -> NextBestView:
         current = self._current()
         step = request.step
+        self._scene(request)
         if request.initial:
             centre = self.first_target()
             base, sol = self.planner.first_view(current, centre)
@@ -245,7 +262,7 @@ class NbvNode:
         centres = self.centres(piece)
         result = self.planner.plan(
             centres, scene, piece.states, piece.origin, piece.voxel_size, current,
-            request.visited, step,
+            request.visited, step, request.excluded,
         )  # fmt: skip
         c = result.candidates
         self.out_candidates.put(

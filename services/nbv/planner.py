@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from schemas import SceneModel
+from schemas.planning import EXCLUDED_RADIUS
 from services.nbv import information_gain as ig
 from services.nbv import topdown, view_sphere
 from services.nbv.kinematics import HeadIK, HeadSolution
@@ -296,7 +297,11 @@ class Planner:
         current: tuple[float, float, float],
         visited: np.ndarray,
         step: int,
+        excluded: np.ndarray | None = None,
     ) -> PlanResult:
+        """One planning step (Algorithm 5); candidates whose platform pose lies within
+        ``EXCLUDED_RADIUS`` of an ``excluded`` one (goals the platform did not reach) are
+        unreachable."""
         c = self.config
         times = {}
         t0 = time.perf_counter()
@@ -343,6 +348,9 @@ class Planner:
         for i, path in zip(maybe, found, strict=True):
             paths[i] = path
         times["path_cost_ms"] = (floor_s + maybe_s + costs_s) * 1e3
+        if excluded is not None and len(excluded) and len(cost):
+            gap = np.linalg.norm(cands.base[:, None, :2] - excluded[None, :, :2], axis=2)
+            cost[gap.min(axis=1) < EXCLUDED_RADIUS] = math.inf
         u = utility(c.strategy, gain, cost, cands.saliency, c.lam, self.rng)
         reachable = np.isfinite(cost)
         best = int(np.argmax(u)) if reachable.any() else None

@@ -103,6 +103,7 @@ class SceneMemoryNode:
         # the seq of the frame being registered (None: none): an observation of that frame or
         # a later one waits for its correction (tens of ms), not for the map's integration
         self.registering: int | None = None
+        self.map_seq: int | None = None  # the newest depth frame the map took
         self.registered = threading.Condition()
         # one writer: wait on standby while another instance is active, then restore what
         # it wrote to the shared data directory
@@ -272,6 +273,7 @@ class SceneMemoryNode:
         else:
             self._update("skip", None)
             self.node.metrics.gauge("frames_skipped", self.memory.frames_skipped)
+        self.map_seq = frame.seq  # the newest frame the map took (OccupancyStats.frame_seq)
         if self.out_registered is not None:
             with self.map_lock:
                 cloud = registered_cloud(self.memory, frame)
@@ -357,6 +359,7 @@ class SceneMemoryNode:
                 map_version=occ.version,
                 frames_integrated=occ.frames,
                 frames_skipped=self.memory.frames_skipped,
+                frame_seq=self.map_seq,
                 realised_volume=int(realised["volume"]),
                 realised_rays=realised["rays"],
             )
@@ -371,10 +374,13 @@ class SceneMemoryNode:
             per_x = max(1, (y1 - y0) * (z1 - z0))
             slab = max(1, self.settings.slice_page_voxels // per_x)
             starts = list(range(x0, max(x1, x0 + 1), slab))
+            # one seq for every page: the fusion counts updates on its own thread meanwhile
+            # (live, the pages of one map came with several seqs and could not be joined)
+            n = self.n
             for page, a in enumerate(starts):
                 origin, states = occ.states_in((a, y0, z0, min(a + slab, x1), y1, z1))
                 yield OccupancySlice(
-                    seq=self.n,
+                    seq=n,
                     voxel_size=occ.voxel,
                     origin=origin,
                     states=states,

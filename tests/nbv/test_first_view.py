@@ -84,3 +84,32 @@ def test_views_whose_platform_pose_is_in_collision_get_no_information_gain(plann
     assert np.all(skipped[bx > 2.0 - 0.5 + 0.1])
     assert np.isfinite(r.cost[~skipped]).all()
     assert r.best is not None and not skipped[r.best]
+
+
+def test_an_excluded_goal_is_not_planned_again(planner):
+    """A goal the platform could not reach (``PlanRequest.excluded``): every candidate within
+    EXCLUDED_RADIUS of it is unreachable (c = ∞), and the best view is another one, away from
+    it; without the exclusion the same map gives that goal back."""
+    from schemas.planning import EXCLUDED_RADIUS
+
+    voxel, origin = 0.04, np.array([-1.5, -2.5, 0.0])
+    states = np.full((125, 125, 50), 1, np.uint8)
+    k = np.floor((CENTRE - origin) / voxel).astype(int)
+    states[k[0] - 5 : k[0] + 5, k[1] - 5 : k[1] + 5, : k[2] - 2] = 2  # the table
+    states[k[0] - 5 : k[0] + 5, k[1] - 5 : k[1] + 5, k[2] - 2 : k[2] + 5] = 0  # unknown on it
+
+    def plan(excluded: np.ndarray | None):
+        try:
+            return planner.plan(CENTRE[None], None, states, origin, voxel, (0.0, 0.0, 0.0),
+                                np.zeros((1, 3)), 1, excluded)  # fmt: skip
+        finally:
+            planner.first_gain = None
+
+    first = plan(None)
+    goal = first.candidates.base[first.best]
+    again = plan(goal[None])
+    base = again.candidates.base
+    near = np.linalg.norm(base[:, :2] - goal[:2], axis=1) < EXCLUDED_RADIUS
+    assert near.any() and np.isinf(again.cost[near]).all()
+    assert again.best is not None and not near[again.best]
+    assert np.linalg.norm(base[again.best, :2] - goal[:2]) >= EXCLUDED_RADIUS
