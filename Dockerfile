@@ -30,6 +30,7 @@ FROM deps AS wheel
 COPY README.md ./
 COPY schemas ./schemas
 COPY services ./services
+COPY experiments ./experiments
 COPY avs ./avs
 RUN --mount=type=cache,target=/root/.cache/pip,sharing=locked \
     --mount=type=bind,source=deploy/wheels,target=/wheels \

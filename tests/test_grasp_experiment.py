@@ -19,8 +19,8 @@ import cv2
 import numpy as np
 import pytest
 
-from avs.grasp_experiment import _K, MARKER, GraspRun, fixating
-from avs.grasp_vision import StereoCheck, find_blob, localise, silhouette_area
+from experiments.grasp import _K, MARKER, GraspRun, fixating
+from experiments.grasp_vision import StereoCheck, find_blob, localise, silhouette_area
 from services.common.arm import ArmKinematics
 from services.common.robots import robot_mjcf
 from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics

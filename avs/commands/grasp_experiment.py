@@ -52,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _one(config, out: Path, label: str, bar: bool = True) -> tuple[dict, object]:
     """One run, its metrics.json written to ``out``; ``bar``: a progress bar on stderr (one run
     at a time), else a line when it is done."""
-    from avs.grasp_experiment import run_grasp, summarise
+    from experiments.grasp import run_grasp, summarise
 
     start = time.monotonic()
     run = run_grasp(config, _bar(f"{label:>22}") if bar else None)
@@ -96,8 +96,8 @@ def table(off: list[dict], on: list[dict]) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from avs.grasp_experiment import GraspExperimentConfig
     from avs.report import grasp_plots
+    from experiments.grasp import GraspExperimentConfig
 
     base = GraspExperimentConfig(
         scene=args.scene, speed=args.speed, sway=(args.sway, 0.5), sensors=args.noise == "on",

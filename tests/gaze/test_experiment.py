@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
-from avs.gaze_experiment import GazeExperimentConfig, run_object
-from avs.image_quality import CupFinder, blur, flow_rmse_deg_s
+from experiments.gaze import GazeExperimentConfig, run_object
+from experiments.image_quality import CupFinder, blur, flow_rmse_deg_s
 from tests.conftest import ROOT
 
 

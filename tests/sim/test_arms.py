@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from avs.servo import GraspServo, ServoConfig, grasp_rotation, project
+from experiments.servo import GraspServo, ServoConfig, grasp_rotation, project
 from schemas import ArmCommand
 from services.common.arm import ArmKinematics, arm_spec, rotation_error
 from services.sim.robots import ARMAR3

@@ -2,7 +2,7 @@
 drives along a straight path past a table and grasps a green cup whose position it does not
 know, without stopping.
 
-Lockstep at 1 kHz, like ``gaze_experiment``. What the robot does:
+Lockstep at 1 kHz, like ``experiments.gaze``. What the robot does:
 
 - **Attention** (5.1, 5.4.2): colour blobs in the peripheral stereo pair (5 Hz) draw the gaze at
   a constant saliency; the cup's and the hand's localisation uncertainties are saliencies too,
@@ -17,9 +17,9 @@ Lockstep at 1 kHz, like ``gaze_experiment``. What the robot does:
 - **Gaze**: with ``stabilize`` the gaze stabiliser (5.2) holds the target on the foveal axes
   every millisecond; without, the same controller makes the saccade to each new target and then
   lets go, so the platform's motion carries the gaze off it.
-- **Grasp**: position-based visual servoing (``avs.servo``) on the cup's projected, then real,
-  pose; the servo's arm model is off by a small calibration error per joint, which the seen
-  hand corrects.
+- **Grasp**: position-based visual servoing (``experiments.servo``) on the cup's projected,
+  then real, pose; the servo's arm model is off by a small calibration error per joint, which
+  the seen hand corrects.
 
 With ``sensors`` the robot's readings come through the sensor models (gyro noise and bias,
 encoder noise and latency, odometry drift).
@@ -37,9 +37,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from avs.grasp_vision import HUES, StereoCheck, find_blob, localise, silhouette_area
-from avs.image_quality import blur, flow_rmse_deg_s
-from avs.servo import GraspServo, ServoConfig
+from experiments.grasp_vision import HUES, StereoCheck, find_blob, localise, silhouette_area
+from experiments.image_quality import blur, flow_rmse_deg_s
+from experiments.servo import GraspServo, ServoConfig
 from services.common.arm import ArmKinematics
 from services.common.robots import robot_mjcf
 from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from avs.image_quality import CupFinder, TextureFinder, blur, flow_rmse_deg_s
+from experiments.image_quality import CupFinder, TextureFinder, blur, flow_rmse_deg_s
 from services.common.robots import robot_mjcf
 from services.gaze.config import FIXATING
 from services.gaze.kinematics import HEAD_JOINTS, GazeKinematics
