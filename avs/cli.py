@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from avs.commands import (
     echo,
     explore,
+    explorer,
     fuse,
     gaze_experiment,
     grasp_experiment,
@@ -32,6 +33,7 @@ from services.common.log import setup_logging
 COMMANDS = (
     run,
     explore,
+    explorer,
     up,
     status,
     sim,

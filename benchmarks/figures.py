@@ -310,6 +310,22 @@ def render_generalization(stdout: str, out: Path) -> str:
     return f"`{line}`\n\n{markdown(_json(out / 'generalization.json')['rows'])}"
 
 
+def render_live_explore(stdout: str, out: Path) -> str:
+    """benchmarks/live_explore.py: the last line and a row per scene, lockstep beside live
+    (final F1, views, seconds to F1 ≥ 0.9 from the services' start, why the live one ended)."""
+    line = last_line(stdout)
+    rows = []
+    for r in _json(out / "live_explore.json")["rows"]:
+        lk, lv = r["lockstep"], r["live"]
+        rows.append((r["scene"], _g(lk.get("f1"), ".2f"), lk.get("views", 0),
+                     _g(lk.get("time_to_f1_09_s"), ".0f"), _g(lv.get("f1"), ".2f"),
+                     lv.get("views", 0), _g(lv.get("time_to_f1_09_s"), ".0f"),
+                     lv.get("reason", "") + (" (crashed)" if r.get("errors") else "")))  # fmt: skip
+    header = ("scene", "lockstep F1", "views", "F1 ≥ 0.9 at, s", "live F1", "views",
+              "F1 ≥ 0.9 at, s", "live episode ended by")  # fmt: skip
+    return f"`{line}`\n\n{_table(header, rows)}"
+
+
 def _runs(data: dict) -> dict[str, list[dict]]:
     """``avs compare``'s episodes per key, from its metrics.json: ``{"runs": {key: [...]}, …}``
     (with its bootstrap summary) or, as before it, ``{key: [...]}``."""
@@ -577,6 +593,12 @@ REGISTRY: dict[str, Figure] = {
             "python benchmarks/generalization.py --scenes 30 --out DIR",
             15,
             render_generalization,
+        ),
+        Figure(
+            "live_explore",
+            "python benchmarks/live_explore.py --scenes 5 --out DIR",
+            20,
+            render_live_explore,
         ),
         Figure(
             "fusion_modes",

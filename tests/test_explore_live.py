@@ -112,7 +112,9 @@ def test_avs_up_explores_by_itself_survives_a_planner_crash_and_stops_at_once(pr
         assert score["support_f1"] >= 0.9, score
         # another episode, stopped while the platform drives (pushed by this test, so that it
         # drives whatever the view): a zero velocity within 0.2 s, then at rest
-        assert control(session, "start").episode == 2
+        started = subprocess.run([*AVS, "explorer", "start", "--connect", endpoint],
+                                 capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert started.returncode == 0 and started.stdout.startswith("episode 2: plan"), started
         wait_for(lambda: watch.last().episode == 2 and watch.last().phase == "settle", 120,
                  "the second episode settling")  # fmt: skip
         push = session.declare_publisher(KEYS.cmd_base())
@@ -125,5 +127,11 @@ def test_avs_up_explores_by_itself_survives_a_planner_crash_and_stops_at_once(pr
         wait_for(lambda: len(watch.halts) > n, 5, "a zero velocity command")
         assert watch.halts[n] - sent <= 0.2, watch.halts[n] - sent
         wait_for(lambda: speed(watch) < 0.01, 3, "the platform at rest")  # braking at 0.5 m/s²
+        said = subprocess.run([*AVS, "explorer", "status", "--connect", endpoint],
+                              capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert said.stdout.startswith("episode 2: done") and "stopped" in said.stdout, said
+        again = subprocess.run([*AVS, "explorer", "pause", "--connect", endpoint],
+                               capture_output=True, text=True, timeout=60)  # fmt: skip
+        assert again.returncode == 0  # nothing to pause: said, not an error
     up.send_signal(signal.SIGINT)
     assert up.wait(60) == 0
