@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import jsonschema
+import numpy as np
 import pytest
 import yaml
 import zenoh
@@ -392,8 +393,13 @@ def test_live_scene_memory_crashed_in_its_container_comes_back_with_its_state(st
               f"{len(after.primitives)} primitives")  # fmt: skip
         assert (after.model_version, len(after.primitives)) == (
             before.model_version, len(before.primitives))  # fmt: skip
-        assert (after_stats.unknown, after_stats.free, after_stats.occupied) == (
-            stats.unknown, stats.free, stats.occupied)  # fmt: skip
+        # the same frames in the map; the replayed ones since the last snapshot are registered
+        # again, and ICP on several threads is not bit-reproducible: the voxel counts agree to
+        # within 0.1 % (they did exactly while the robot stood still: no keyframe to replay)
+        assert after_stats.frames_integrated == stats.frames_integrated
+        now = np.array([after_stats.unknown, after_stats.free, after_stats.occupied])
+        then = np.array([stats.unknown, stats.free, stats.occupied])
+        assert np.abs(now - then).max() <= 1e-3 * then.sum(), (now, then)
         memory.reload()
         assert memory.attrs["State"]["Status"] == "running" and t_serving < 60
     finally:
