@@ -52,6 +52,9 @@ class ExploreStatus(Stamped):
     realised_gain: float = 0.0
     unknown: int = Field(-1, ge=-1, description="unknown roi voxels after the last view (-1: none)")
     abandoned: int = Field(0, ge=0, description="goals the platform did not reach in time")
+    cost: float = Field(0.0, ge=0, description="the current view's path cost c(v), s (Eq. 4.9)")
+    planning_s: float = Field(0.0, ge=0, description="how long the current view's plan took")
+    frame_seq: int | None = Field(None, description="the frame of the last view taken")
     reason: str = ""
     detail: str = ""
     ok: bool = True

@@ -49,6 +49,11 @@ class ExplorerSettings(ServiceSettings):
         30.0, gt=0, description="a frame after settling fused and mapped within this, or stop"
     )
     plan_timeout_s: float = Field(300.0, gt=0, description="one plan query waits this long")
+    hold: bool = Field(
+        False,
+        description="after each view but the last, wait (paused) for a resume on "
+        "explore/control: an evaluator scores the view while the sim stands still (lockstep)",
+    )
     gaze_priority: float = Field(
         1.0, description="priority of the view's target on gaze/target (manual targets win)"
     )

@@ -44,6 +44,9 @@ class Limits:
     capture_timeout_s: float = 30.0
     retry_s: float = 1.0
     max_abandoned: int = 3
+    #: after each view but the last, wait (paused) until resumed: an evaluator in lockstep
+    #: scores the view while the sim stands still
+    hold: bool = False
 
 
 @dataclass
@@ -117,6 +120,7 @@ class Exploration:
     realised_gain: float = 0.0
     unknown: int | None = None
     abandoned: int = 0
+    frame: int | None = None  # the frame of the last view taken
     version: int = 0  # bumped on every change worth a status
     visited: list[tuple[float, float, float]] = field(default_factory=list)
     excluded: list[tuple[float, float, float]] = field(default_factory=list)
@@ -141,6 +145,7 @@ class Exploration:
         self.view = self.step = self.abandoned = self._in_a_row = 0
         self.current, self.reason, self.detail = None, "", ""
         self.realised_gain, self.visited, self.excluded = 0.0, [], []
+        self.frame = None
         self._to("plan", now)
         return []
 
@@ -156,6 +161,7 @@ class Exploration:
             return []
         # a move the halt interrupted is planned again from where the platform stands
         back = self._resume if self._resume in ("capture", "plan") else "plan"
+        self.detail = ""
         self._to(back, now)
         return []
 
@@ -283,8 +289,12 @@ class Exploration:
         if s.base is not None:
             self.visited.append(tuple(map(float, s.base)))
         self.step += 1
+        self.frame = self._frame
         if self.view >= self.views:
             self._finish("max_views", f"{self.view} views taken", s.now)
+        elif self.limits.hold:
+            self._resume, self.detail = "plan", f"view {self.view} taken: held until resumed"
+            self._to("paused", s.now)
         else:
             self._to("plan", s.now)
         return []

@@ -22,6 +22,7 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class ExplorerNode:
                 base_still=settings.base_still, settle_hold_s=settings.settle_hold_s,
                 settle_timeout_s=settings.settle_timeout_s,
                 move_margin_s=settings.move_margin_s,
-                capture_timeout_s=settings.capture_timeout_s,
+                capture_timeout_s=settings.capture_timeout_s, hold=settings.hold,
             )
         )  # fmt: skip
         self.lock = threading.RLock()
@@ -77,7 +78,6 @@ class ExplorerNode:
         )
         self.lockstep = settings.clock == "lockstep"
         self.clock = 0.0  # lockstep: sim time stepped plus wall time spent not stepping
-        self._wall = time.monotonic()
         self.base: BasePose | None = None
         self.head_joints: list[str] = []
         self.head_speed: float | None = None
@@ -85,6 +85,9 @@ class ExplorerNode:
         self.fused_seq: int | None = None
         self.stats: OccupancyStats | None = None
         self.status_seq = 0
+        self.planning_s = 0.0
+        self._published, self._looked = -1, -math.inf  # the status version said, a look's time
+        self.joints_seq = -1  # the newest joint state's seq (lockstep waits for a step's)
         self.joints = node.inbox(k.joints(), JointState, size=4)
         node.subscribe(k.base_state(), BasePose, self.on_base)
         node.subscribe(k.rgbd(settings.camera), RgbdFrame, _ignore, accept=self.on_frame_head)
@@ -123,21 +126,21 @@ class ExplorerNode:
 
     def now(self) -> float:
         """The core's clock: monotonic on the wall clock; in lockstep the sim time stepped plus
-        the wall time spent waiting without stepping (plans, fusion)."""
-        if not self.lockstep:
-            return time.monotonic()
-        t = time.monotonic()
-        self.clock += t - self._wall
-        self._wall = t
-        return self.clock
+        the wall time spent waiting without stepping (plans, fusion: ``idle``), so that what
+        happens while the robot moves (arrival, settling) is decided on sim time alone."""
+        return self.clock if self.lockstep else time.monotonic()
+
+    def idle(self, seconds: float) -> None:
+        """Wait without stepping; in lockstep the clock goes on by the wall time waited."""
+        t0 = time.monotonic()
+        self.node._stop.wait(seconds)
+        self.clock += time.monotonic() - t0
 
     def sense(self) -> Sensed:
         js = self.joints.newest()
         if js is not None:
-            names = self.head_joints or list(js.names)
-            speeds = [abs(v) for n, v in zip(js.names, js.velocity.tolist(), strict=True)
-                      if n in names]  # fmt: skip
-            self.head_speed = max(speeds, default=0.0)
+            self.joints_seq = max(self.joints_seq, js.seq)
+            self._joint_speed(js)
         if self.core.phase in ("capture", "plan"):
             self.stats = self._stats()
         b, st = self.base, self.stats
@@ -178,6 +181,13 @@ class ExplorerNode:
         roi = self.roi
         return ((roi[0] + roi[1]) / 2)[None, :] if roi is not None else np.zeros((0, 3))
 
+    def _joint_speed(self, js: JointState) -> None:
+        """The head's speed: the fastest of the view's joints (all, before the first view)."""
+        names = self.head_joints or list(js.names)
+        speeds = [abs(v) for n, v in zip(js.names, js.velocity.tolist(), strict=True)
+                  if n in names]  # fmt: skip
+        self.head_speed = max(speeds, default=0.0)
+
     def _stats(self) -> OccupancyStats | None:
         roi = self.roi or EVERYWHERE
         box = BoxQuery(box_min=roi[0], box_max=roi[1])
@@ -189,24 +199,36 @@ class ExplorerNode:
         return replies[0] if replies else self.stats
 
     def loop(self) -> None:
-        published, looked = -1, -math.inf
+        """Turn after turn until the node stops; a turn that fails (a sim not up yet, a query
+        refused) is counted and logged, and the loop goes on."""
         while not self.node.stopping:
-            with self.lock:
-                actions = self.core.tick(self.sense())
-            self.act(actions)
-            with self.lock:
-                if self.core.version != published:
-                    published = self.core.version
-                    self.publish_status()
-                phase, view = self.core.phase, self.core.current
-            holding = view is not None and phase in ("move", "settle", "capture")
-            if holding and time.monotonic() - looked >= LOOK_EVERY_S:
-                self.look(view.target)
-                looked = time.monotonic()
-            if self.lockstep and phase in ("move", "settle"):
-                self.step()
-            else:
-                self.node._stop.wait(self.s.tick_s if not self.lockstep else 0.01)
+            try:
+                self.turn()
+            except Exception as e:
+                self.node.drop(f"loop_error:{type(e).__name__}", "explorer:loop", repr(e))
+                self.idle(1.0)
+
+    def turn(self) -> None:
+        """Sense, decide, act, say so; then step (lockstep) or wait a tick."""
+        with self.lock:
+            actions = self.core.tick(self.sense())
+        self.act(actions)
+        with self.lock:
+            if self.core.version != self._published:
+                self._published = self.core.version
+                self.publish_status()
+            phase, view = self.core.phase, self.core.current
+        holding = view is not None and phase in ("move", "settle", "capture")
+        if holding and time.monotonic() - self._looked >= LOOK_EVERY_S:
+            self.look(view.target)
+            self._looked = time.monotonic()
+        # lockstep: the sim moves only when stepped, its first states included (a planner plans
+        # from the platform's pose)
+        first = phase == "plan" and self.base is None
+        if self.lockstep and (phase in ("move", "settle") or first):
+            self.step()
+        else:
+            self.idle(self.s.tick_s if not self.lockstep else 0.01)
 
     def act(self, actions: list) -> None:
         for a in actions:
@@ -230,6 +252,7 @@ class ExplorerNode:
             centres=self.centres(), roi_min=roi[0] if roi else None,
             roi_max=roi[1] if roi else None,
         )  # fmt: skip
+        t0 = time.monotonic()
         try:
             replies = self.node.query(self.node.keys.plan(), request, NextBestView,
                                       self.s.plan_timeout_s)  # fmt: skip
@@ -242,6 +265,7 @@ class ExplorerNode:
                 self.core.plan_failed(error, self.now())
             return
         nbv = replies[0]
+        self.planning_s = time.monotonic() - t0
         view = View(
             step=a.step, terminate=nbv.terminate, reason=nbv.reason, detail=nbv.detail,
             base=(nbv.x, nbv.y, nbv.yaw), target=tuple(map(float, nbv.target)),
@@ -279,20 +303,31 @@ class ExplorerNode:
         return status
 
     def step(self) -> None:
-        self.sim(op="step", n=max(1, round(self.s.step_s * 1000)))
-        self._wall = time.monotonic()  # the wall time the step took is not the robot's
-        self.clock += self.s.step_s
+        """Lockstep: ``step_s`` of sim time, and the platform and joint states it published
+        taken before the next decision (a decision on a state still on its way would make the
+        episode depend on the machine's load: the step's reply can overtake the streams)."""
+        status = self.sim(op="step", n=max(1, round(self.s.step_s * 1000)))
+        deadline = time.monotonic() + 30
+        base, joints = status.published.get("base"), status.published.get("joints")
+        while not self.node.stopping and time.monotonic() < deadline:
+            js = self.joints.newest()
+            if js is not None:
+                self.joints_seq = max(self.joints_seq, js.seq)
+                self._joint_speed(js)
+            b = self.base
+            if (base is None or (b is not None and b.seq >= base)) and (
+                joints is None or self.joints_seq >= joints
+            ):
+                break
+            time.sleep(0.001)
+        self.clock += self.s.step_s  # the wall time the step took is not the robot's
 
-    def await_commands(self, step: int, streams: tuple[str, ...], timeout: float = 30.0) -> None:
-        """Lockstep: the planner's commands of ``step`` applied before the first step (they
-        travel by a route of their own and the plan's reply can overtake them)."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline and not self.node.stopping:
-            applied = self.sim(op="status").applied
-            if all(applied.get(s, -1) >= step for s in streams):
-                return
-            time.sleep(0.005)
-        log.warning("the sim has not applied the planner's commands of step %d", step)
+    def await_commands(self, step: int, streams: tuple[str, ...]) -> None:
+        """Lockstep: the planner's commands of ``step`` applied before the first step."""
+        try:
+            await_commands(lambda: self.sim(op="status"), step, streams)
+        except TimeoutError as e:
+            log.warning("%s", e)
 
     # -- status and control --------------------------------------------------------------------
 
@@ -307,6 +342,8 @@ class ExplorerNode:
             predicted_gain=v.information_gain if v is not None else 0.0,
             realised_gain=c.realised_gain, unknown=c.unknown if c.unknown is not None else -1,
             abandoned=c.abandoned, reason=c.reason, detail=c.detail,
+            cost=v.cost if v is not None else 0.0, planning_s=self.planning_s,
+            frame_seq=c.frame,
         )  # fmt: skip
 
     def publish_status(self) -> None:
@@ -345,3 +382,23 @@ class ExplorerNode:
 
 def _ignore(_message: object) -> None:
     """Never called: the inputs it stands for are read from their first bytes only."""
+
+
+def await_commands(
+    status: Callable[[], SimStatus], step: int, streams: tuple[str, ...], timeout: float = 30.0
+) -> None:
+    """Lockstep: wait until the sim applied the planner's commands of ``step`` on ``streams``
+    (``SimStatus.applied``). They travel from the planner by a route of their own; the plan's
+    reply and the first step can overtake them, and a goal that lands a step late drives
+    another trajectory (the episode would depend on the machine's load)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        applied = status().applied
+        if all(applied.get(s, -1) >= step for s in streams):
+            return
+        if time.monotonic() > deadline:
+            raise TimeoutError(
+                f"the sim has not applied the planner's {'/'.join(streams)} commands of "
+                f"step {step} after {timeout:g} s (applied: {applied})"
+            )
+        time.sleep(0.005)

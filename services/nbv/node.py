@@ -189,10 +189,12 @@ class NbvNode:
         return np.array([[mid[0], mid[1], 0.9]])
 
     def first_target(self) -> np.ndarray:
-        if self.request_centres is not None:
-            return self.request_centres[0]
+        """What the first view looks at: the settings' (a scene's centre, where its view
+        spheres are around points of interest), else the first view-sphere centre."""
         if self.s.first_target:
             return np.array(self.s.first_target, float)
+        if self.request_centres is not None:
+            return self.request_centres[0]
         return self.centres(None)[0]
 
     def _head(self, joints: dict[str, float], step: int) -> None:

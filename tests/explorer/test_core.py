@@ -166,3 +166,17 @@ def test_a_head_that_never_stills_is_taken_after_the_settle_timeout():
     assert x.tick(r.sensed()) == []
     r.t += 0.2
     assert x.tick(r.sensed()) == [Render()] and "not still" in x.detail
+
+
+def test_hold_pauses_after_each_view_but_the_last_until_resumed():
+    """``hold`` (an evaluator in lockstep): after a view the explorer waits, paused, with the
+    view's frame named; resumed, it plans the next; after the last view it is done at once."""
+    x, r = Exploration(Limits(views=2, hold=True)), Robot()
+    x.start(r.t)
+    run_view(x, r, 0)
+    assert (x.phase, x.view, x.frame) == ("paused", 1, r.frame)
+    assert x.tick(r.sensed()) == []  # held: no plan
+    x.resume(r.t)
+    assert x.phase == "plan" and x.detail == ""
+    run_view(x, r, 1)
+    assert (x.phase, x.reason, x.view) == ("done", "max_views", 2)
