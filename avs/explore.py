@@ -53,6 +53,7 @@ from schemas import (
     encode,
 )
 from services.common.poses import pose_difference
+from services.explorer.node import await_commands
 
 EPISODE_SERVICES = ("sim", "perception", "scene_memory", "nbv")
 #: how long the driver waits for the sim to apply the planner's commands of a step
@@ -352,17 +353,7 @@ class Episode:
         They travel from the planner, by a route of their own; the plan's reply and this
         driver's first step can overtake them, and a goal that lands a step late drives
         another trajectory (the episode would depend on the machine's load)."""
-        deadline = time.monotonic() + timeout
-        while True:
-            applied = self._sim(session, op="status").applied
-            if all(applied.get(s, -1) >= seq for s in streams):
-                return
-            if time.monotonic() > deadline:
-                raise TimeoutError(
-                    f"the sim has not applied the planner's {'/'.join(streams)} commands of "
-                    f"step {seq} after {timeout:g} s (applied: {applied})"
-                )
-            time.sleep(0.005)
+        await_commands(lambda: self._sim(session, op="status"), seq, streams, timeout)
 
     def _settle(
         self, session, base: Latest, joints: Latest, nbv: NextBestView, goal: str, trajectory: list

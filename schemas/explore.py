@@ -8,7 +8,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from schemas.base import Message, Stamped
-from schemas.types import Vec3
+from schemas.types import Vec3, check_roi
 
 ExplorePhase = Literal["idle", "plan", "move", "settle", "capture", "paused", "done"]
 ExploreOp = Literal["status", "start", "pause", "resume", "stop"]
@@ -27,10 +27,7 @@ class ExploreControl(Message):
 
     @model_validator(mode="after")
     def _roi_whole(self) -> ExploreControl:
-        if (self.roi_min is None) != (self.roi_max is None):
-            raise ValueError("roi_min and roi_max come together")
-        if self.roi_min is not None and not (self.roi_min < self.roi_max).all():
-            raise ValueError("roi_min must be below roi_max on every axis")
+        check_roi(self.roi_min, self.roi_max)
         return self
 
 

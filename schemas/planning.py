@@ -9,7 +9,7 @@ from pydantic import Field, field_validator, model_validator
 
 from schemas.arrays import Array, Dim
 from schemas.base import Message, Stamped
-from schemas.types import Finite, Pose, Poses, Rigid, Vec3
+from schemas.types import Finite, Pose, Poses, Rigid, Vec3, check_roi
 
 
 def _column(dtype: str = "float64", description: str = "") -> Array:
@@ -125,10 +125,7 @@ class PlanRequest(Message):
 
     @model_validator(mode="after")
     def _roi_whole(self) -> PlanRequest:
-        if (self.roi_min is None) != (self.roi_max is None):
-            raise ValueError("roi_min and roi_max come together")
-        if self.roi_min is not None and not (self.roi_min < self.roi_max).all():
-            raise ValueError("roi_min must be below roi_max on every axis")
+        check_roi(self.roi_min, self.roi_max)
         return self
 
     @field_validator("visited", "excluded")

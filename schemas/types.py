@@ -116,3 +116,12 @@ Direction = Annotated[np.ndarray, Array("float64", (3,)), UnitVector()]
 
 #: A unit quaternion (w, x, y, z), float64.
 Quat = Annotated[np.ndarray, Array("float64", (4,)), UnitQuaternion()]
+
+
+def check_roi(low: np.ndarray | None, high: np.ndarray | None) -> None:
+    """An optional roi comes whole (both corners or neither), its low corner below its high
+    one on every axis; ValueError otherwise (a model validator's message)."""
+    if (low is None) != (high is None):
+        raise ValueError("roi_min and roi_max come together")
+    if low is not None and not (np.asarray(low) < np.asarray(high)).all():
+        raise ValueError("roi_min must be below roi_max on every axis")
