@@ -2,9 +2,10 @@
 clock.
 
 Inputs, all light in their callbacks: odometry (``state/base``, the newest kept), the joint
-states (polled, the newest decoded each tick), the camera's frames and the scene models (only
-their ``seq`` / ``fused_frames`` read with ``codec.peek``: a 2 MB frame or a 3 MB model is
-never decoded here). The loop runs on a thread of its own, ``tick_s`` apart on the wall clock;
+states (polled, the newest decoded each tick), and, only while a view settles and is captured,
+the camera's frames and the scene models (their ``seq`` / ``fused_frames`` read with
+``codec.peek``: a 2 MB frame or a 3 MB model is never decoded here, and an idle explorer
+receives none). The loop runs on a thread of its own, ``tick_s`` apart on the wall clock;
 in lockstep it steps ``sim/control`` by ``step_s`` while the platform and head move, and asks
 the sim to render each view. Plans are asked on ``nbv/plan`` (the planner drives the platform
 and aims the head: ``execute``); the view's target goes on ``gaze/target`` so that the gaze
@@ -39,8 +40,6 @@ from schemas import (
     NextBestView,
     OccupancyStats,
     PlanRequest,
-    RgbdFrame,
-    SceneModel,
     SimControl,
     SimStatus,
 )
@@ -90,8 +89,11 @@ class ExplorerNode:
         self.joints_seq = -1  # the newest joint state's seq (lockstep waits for a step's)
         self.joints = node.inbox(k.joints(), JointState, size=4)
         node.subscribe(k.base_state(), BasePose, self.on_base)
-        node.subscribe(k.rgbd(settings.camera), RgbdFrame, _ignore, accept=self.on_frame_head)
-        node.subscribe(k.scene(), SceneModel, _ignore, accept=self.on_model_head)
+        # the frames (2 MB, 15 a second) and the scene models (MB, 6 a second) only while a view
+        # settles and is captured (``watch``): subscribed, they would come here all along
+        # (an idle explorer in the live stack took 6 % of a core for them)
+        self.watching: list = []
+        self.stats_at = -math.inf
         self.out_status = node.publisher(k.explore_status())
         self.out_gaze = node.publisher(k.gaze_target())
         self.out_base = node.publisher(k.cmd_base())
@@ -141,8 +143,9 @@ class ExplorerNode:
         if js is not None:
             self.joints_seq = max(self.joints_seq, js.seq)
             self._joint_speed(js)
-        if self.core.phase in ("capture", "plan"):
-            self.stats = self._stats()
+        phase = self.core.phase
+        if phase == "plan" or (phase == "capture" and time.monotonic() - self.stats_at >= 0.2):
+            self.stats, self.stats_at = self._stats(), time.monotonic()
         b, st = self.base, self.stats
         return Sensed(
             now=self.now(),
@@ -208,8 +211,28 @@ class ExplorerNode:
                 self.node.drop(f"loop_error:{type(e).__name__}", "explorer:loop", repr(e))
                 self.idle(1.0)
 
+    def watch(self, on: bool) -> None:
+        """Subscribe to the camera's frames and the scene models (their first bytes read:
+        ``on_frame_head``, ``on_model_head``), or undeclare them."""
+        if on and not self.watching:
+            k, session = self.node.keys, self.node.session
+
+            def heads(read):
+                return lambda sample: read(sample.payload.to_bytes())
+
+            self.watching = [
+                session.declare_subscriber(k.rgbd(self.s.camera), heads(self.on_frame_head)),
+                session.declare_subscriber(k.scene(), heads(self.on_model_head)),
+            ]
+        elif not on and self.watching:
+            for sub in self.watching:
+                sub.undeclare()
+            self.watching = []
+
     def turn(self) -> None:
         """Sense, decide, act, say so; then step (lockstep) or wait a tick."""
+        # while settling (0.3 s at least: the newest frame is known when it ends) and capturing
+        self.watch(self.core.phase in ("settle", "capture"))
         with self.lock:
             actions = self.core.tick(self.sense())
         self.act(actions)
@@ -378,10 +401,6 @@ class ExplorerNode:
                 if isinstance(a, Halt):
                     self.halt(a.reason)
             return self.status()
-
-
-def _ignore(_message: object) -> None:
-    """Never called: the inputs it stands for are read from their first bytes only."""
 
 
 def await_commands(
