@@ -26,6 +26,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+import zenoh
 
 from schemas import (
     BasePose,
@@ -44,7 +45,7 @@ from schemas import (
     SimStatus,
 )
 from schemas.codec import peek
-from services.common.node import Node, RemoteError
+from services.common.node import Inbox, Node, RemoteError
 from services.explorer.config import ExplorerSettings
 from services.explorer.core import Exploration, Halt, Limits, Look, Plan, Render, Sensed, View
 
@@ -87,11 +88,12 @@ class ExplorerNode:
         self.planning_s = 0.0
         self._published, self._looked = -1, -math.inf  # the status version said, a look's time
         self.joints_seq = -1  # the newest joint state's seq (lockstep waits for a step's)
-        self.joints = node.inbox(k.joints(), JointState, size=4)
-        node.subscribe(k.base_state(), BasePose, self.on_base)
-        # the frames (2 MB, 15 a second) and the scene models (MB, 6 a second) only while a view
-        # settles and is captured (``watch``): subscribed, they would come here all along
-        # (an idle explorer in the live stack took 6 % of a core for them)
+        # the robot's states only during an episode (``attend``), the frames (2 MB, 15 a second)
+        # and the scene models (MB, 6 a second) only while a view settles and is captured
+        # (``watch``): an idle explorer receives nothing (subscribed all along, they took 10 % of
+        # a core in the live stack)
+        self.joints: Inbox[JointState] | None = None
+        self.states: list = []
         self.watching: list = []
         self.stats_at = -math.inf
         self.out_status = node.publisher(k.explore_status())
@@ -139,7 +141,7 @@ class ExplorerNode:
         self.clock += time.monotonic() - t0
 
     def sense(self) -> Sensed:
-        js = self.joints.newest()
+        js = self.newest_joints()
         if js is not None:
             self.joints_seq = max(self.joints_seq, js.seq)
             self._joint_speed(js)
@@ -211,6 +213,30 @@ class ExplorerNode:
                 self.node.drop(f"loop_error:{type(e).__name__}", "explorer:loop", repr(e))
                 self.idle(1.0)
 
+    def attend(self, on: bool) -> None:
+        """Subscribe to odometry (decoded in the callback: small, 100 a second) and the joint
+        states (kept in a ring of 4, the newest decoded when asked), or undeclare them."""
+        if on and not self.states:
+            k, session = self.node.keys, self.node.session
+            joints = session.declare_subscriber(k.joints(), zenoh.handlers.RingChannel(4))
+            self.joints = Inbox(self.node, joints, JointState, 4)
+
+            def base(sample: zenoh.Sample) -> None:
+                key = str(sample.key_expr)
+                self.node.metrics.count_in(key)
+                message = self.node._decode(key, sample.payload.to_bytes(), BasePose)
+                if message is not None:
+                    self.on_base(message)
+
+            self.states = [joints, session.declare_subscriber(k.base_state(), base)]
+        elif not on and self.states:
+            for sub in self.states:
+                sub.undeclare()
+            self.states, self.joints = [], None
+
+    def newest_joints(self) -> JointState | None:
+        return self.joints.newest() if self.joints is not None else None
+
     def watch(self, on: bool) -> None:
         """Subscribe to the camera's frames and the scene models (their first bytes read:
         ``on_frame_head``, ``on_model_head``), or undeclare them."""
@@ -231,8 +257,10 @@ class ExplorerNode:
 
     def turn(self) -> None:
         """Sense, decide, act, say so; then step (lockstep) or wait a tick."""
+        phase = self.core.phase
+        self.attend(phase in ("plan", "move", "settle", "capture"))
         # while settling (0.3 s at least: the newest frame is known when it ends) and capturing
-        self.watch(self.core.phase in ("settle", "capture"))
+        self.watch(phase in ("settle", "capture"))
         with self.lock:
             actions = self.core.tick(self.sense())
         self.act(actions)
@@ -333,7 +361,7 @@ class ExplorerNode:
         deadline = time.monotonic() + 30
         base, joints = status.published.get("base"), status.published.get("joints")
         while not self.node.stopping and time.monotonic() < deadline:
-            js = self.joints.newest()
+            js = self.newest_joints()
             if js is not None:
                 self.joints_seq = max(self.joints_seq, js.seq)
                 self._joint_speed(js)
