@@ -10,13 +10,13 @@ the plans that follow from it differ."""
 from __future__ import annotations
 
 import json
-from itertools import pairwise
 import os
 import signal
 import subprocess
 import sys
 import threading
 import time
+from itertools import pairwise
 
 import pytest
 import zenoh
