@@ -68,10 +68,12 @@ def test_booth_orderings_the_seeds_support(tmp_path):
     random placement's drives vary from 12 to 35 s), nor any ordering of the support F1.
 
     This test runs 5 seeds to stay within the suite's time (at 3 the interval of a median
-    cannot reach its level and ``avs compare`` supports nothing). At seeds 0-4 the same
-    bootstrap supports the three unknown-voxel orderings and utility < occupancy on path
-    cost, which it asserts; random < occupancy on path cost needs more seeds (random's
-    interval is 11.7-35.4 s at 5) and is not claimed."""
+    cannot reach its level and ``avs compare`` supports nothing). At seeds 0-4 (the episode
+    driven by the explorer service in lockstep) the same bootstrap supports occupancy <
+    utility and occupancy < random on unknown voxels and utility < occupancy on path cost,
+    which it asserts; utility < random on unknown voxels needs more seeds (one random seed of
+    five ends at 4.295 M, inside utility's interval 4.303-4.329 M) and is not claimed, nor is
+    random < occupancy on path cost (random's interval is 16.9-35.3 s at 5)."""
     out = run(
         ["compare", "--scene", "booth", "--strategies", "utility,occupancy,random",
          "--seeds", "5", "--views", "5", "--voxel", "0.02", "--jobs", "2", "--out", str(tmp_path)],
@@ -96,7 +98,6 @@ def test_booth_orderings_the_seeds_support(tmp_path):
                  for o in metrics["orderings"] if o["supported"]}  # fmt: skip
     claimed = {
         ("unknown_voxels", "occupancy", "utility"),
-        ("unknown_voxels", "utility", "random"),
         ("unknown_voxels", "occupancy", "random"),
         ("accumulated_path_cost", "utility", "occupancy"),
     }
