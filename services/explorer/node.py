@@ -26,7 +26,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-import zenoh
 
 from schemas import (
     BasePose,
@@ -41,11 +40,13 @@ from schemas import (
     NextBestView,
     OccupancyStats,
     PlanRequest,
+    RgbdFrame,
+    SceneModel,
     SimControl,
     SimStatus,
 )
 from schemas.codec import peek
-from services.common.node import Inbox, Node, RemoteError
+from services.common.node import Inbox, Node, RemoteError, Subscription
 from services.explorer.config import ExplorerSettings
 from services.explorer.core import Exploration, Halt, Limits, Look, Plan, Render, Sensed, View
 
@@ -93,8 +94,8 @@ class ExplorerNode:
         # (``watch``): an idle explorer receives nothing (subscribed all along, they took 10 % of
         # a core in the live stack)
         self.joints: Inbox[JointState] | None = None
-        self.states: list = []
-        self.watching: list = []
+        self.states: list[Subscription] = []
+        self.watching: list[Subscription] = []
         self.stats_at = -math.inf
         self.out_status = node.publisher(k.explore_status())
         self.out_gaze = node.publisher(k.gaze_target())
@@ -102,7 +103,7 @@ class ExplorerNode:
         node.serve(k.explore_control(), self.on_control, ExploreControl)
         if settings.autostart:
             self.core.start(self.now(), settings.views)
-        node._start_thread(self.loop, "explorer:loop")
+        node.start_thread(self.loop, "explorer:loop")
 
     # -- inputs (light: Zenoh's callbacks) -----------------------------------------------------
 
@@ -137,7 +138,7 @@ class ExplorerNode:
     def idle(self, seconds: float) -> None:
         """Wait without stepping; in lockstep the clock goes on by the wall time waited."""
         t0 = time.monotonic()
-        self.node._stop.wait(seconds)
+        self.node.wait(seconds)
         self.clock += time.monotonic() - t0
 
     def sense(self) -> Sensed:
@@ -217,18 +218,9 @@ class ExplorerNode:
         """Subscribe to odometry (decoded in the callback: small, 100 a second) and the joint
         states (kept in a ring of 4, the newest decoded when asked), or undeclare them."""
         if on and not self.states:
-            k, session = self.node.keys, self.node.session
-            joints = session.declare_subscriber(k.joints(), zenoh.handlers.RingChannel(4))
-            self.joints = Inbox(self.node, joints, JointState, 4)
-
-            def base(sample: zenoh.Sample) -> None:
-                key = str(sample.key_expr)
-                self.node.metrics.count_in(key)
-                message = self.node._decode(key, sample.payload.to_bytes(), BasePose)
-                if message is not None:
-                    self.on_base(message)
-
-            self.states = [joints, session.declare_subscriber(k.base_state(), base)]
+            k = self.node.keys
+            self.joints = self.node.inbox(k.joints(), JointState, 4)
+            self.states = [self.joints, self.node.subscribe(k.base_state(), BasePose, self.on_base)]
         elif not on and self.states:
             for sub in self.states:
                 sub.undeclare()
@@ -238,17 +230,14 @@ class ExplorerNode:
         return self.joints.newest() if self.joints is not None else None
 
     def watch(self, on: bool) -> None:
-        """Subscribe to the camera's frames and the scene models (their first bytes read:
-        ``on_frame_head``, ``on_model_head``), or undeclare them."""
+        """Subscribe to the camera's frames and the scene models, reading only their first
+        bytes (``on_frame_head``, ``on_model_head`` refuse every sample: none is decoded), or
+        undeclare them."""
         if on and not self.watching:
-            k, session = self.node.keys, self.node.session
-
-            def heads(read):
-                return lambda sample: read(sample.payload.to_bytes())
-
+            k, n = self.node.keys, self.node
             self.watching = [
-                session.declare_subscriber(k.rgbd(self.s.camera), heads(self.on_frame_head)),
-                session.declare_subscriber(k.scene(), heads(self.on_model_head)),
+                n.subscribe(k.rgbd(self.s.camera), RgbdFrame, _never, accept=self.on_frame_head),
+                n.subscribe(k.scene(), SceneModel, _never, accept=self.on_model_head),
             ]
         elif not on and self.watching:
             for sub in self.watching:
@@ -449,3 +438,7 @@ def await_commands(
                 f"step {step} after {timeout:g} s (applied: {applied})"
             )
         time.sleep(0.005)
+
+
+def _never(_message: object) -> None:
+    """The handler of an input whose ``accept`` refuses every sample."""

@@ -151,9 +151,9 @@ class GazeNode:
                            latest_only=True, name="on_blobs")  # fmt: skip
         if settings.okr_gain > 0:
             node.subscribe(k.rgbd(self.okr_camera), RgbdFrame, self.on_frame, latest_only=True)
-        node._start_thread(self.watchdog, "gaze:watchdog")
+        node.start_thread(self.watchdog, "gaze:watchdog")
         if settings.egosphere_rate > 0:
-            node._start_thread(self.publish_egosphere, "gaze:egosphere")
+            node.start_thread(self.publish_egosphere, "gaze:egosphere")
 
     # -- inputs -------------------------------------------------------------------------------
 
