@@ -533,7 +533,7 @@ class Fusion:
             pts = phi.inliers.astype(np.float64)
             outcome, target = "add", None
             best = 0.0
-            if phi.model.kind in SOLIDS and self._spans_objects(phi, visible):
+            if phi.model.kind in SOLIDS and self._spans_objects(phi, visible, points=pts):
                 result.dropped += 1  # one solid around several the memory tells apart: a
                 continue  # segment that merged touching objects, not a better view of one
             phi_on_floor = floor is not None and _on_floor(phi, floor, c)
@@ -639,11 +639,18 @@ class Fusion:
         return result
 
     def _spans_objects(
-        self, p: Primitive, candidates: list[MemoryPrimitive], limit: int = 2
+        self,
+        p: Primitive,
+        candidates: list[MemoryPrimitive],
+        limit: int = 2,
+        points: np.ndarray | None = None,
     ) -> bool:
         """Does ``p`` hold what the memory knows as separate things: ``limit`` or more
         solids, or planes off its surface (a box's own faces lie on it), or two primitives
-        of which one supports the other? Inside: Inlier ≥ ``contained``."""
+        of which one supports the other? Inside: Inlier ≥ ``contained``. With ``p``'s
+        ``points``, a solid holding more than λ_p of them is also one of its things for the
+        support test: a segment across a contact (a box's top and the plank on it) covers
+        neither whole, and would otherwise replace the one it covers most."""
         c = self.config
         inside, things = set(), 0
         for m in candidates:
@@ -651,10 +658,16 @@ class Fusion:
                 m.primitive.obb, p.obb, c.obb_margin
             ):
                 continue
+            kind = m.primitive.model.kind
             if inlier(m.points, p.obb, c.obb_margin) < c.contained:
+                if (
+                    points is not None
+                    and kind in SOLIDS
+                    and inlier(points, m.primitive.obb, c.obb_margin) > c.lambda_p
+                ):
+                    inside.add(m.id)
                 continue
             inside.add(m.id)
-            kind = m.primitive.model.kind
             face = kind == "plane" and on_surface(p, m.points, c.face_distance)
             things += kind in SOLIDS or not face
         return things >= limit or any(a in inside and b in inside for a, b in self.occ)

@@ -250,3 +250,31 @@ def test_first_of_each_is_numpy_unique_s_first_indices():
     for keys in cases:
         _, first = np.unique(keys, return_index=True)
         assert np.array_equal(first_of_each(keys), np.sort(first))
+
+
+def test_a_segment_across_a_support_contact_does_not_replace_the_supporter():
+    """Generated scene 1012: a plank on a block, both fused with the block → plank edge; a
+    later view segments the block's upper part and the plank as one flat box. It covers the
+    block's points (Inlier 1.0) but neither whole: it would replace the block and take the
+    plank's place in the graph. It is a segment across a contact, dropped like one around
+    several objects (``Fusion._spans_objects``)."""
+    fusion = Fusion()
+    table = plane(0, (0.4, 1.4), (-0.4, 0.4), 0.75)
+    block = box(1, (0.9, 0.0, 0.822), (0.10, 0.066, 0.144))
+    plank = box(2, (0.9, 0.04, 0.917), (0.23, 0.11, 0.046))
+    for i in range(2):
+        fusion.update(observation(i, [table, block, plank], [(0, 1), (1, 2)],
+                                  T=camera_above(0.9 + 0.02 * i)))  # fmt: skip
+    before = {m.id: m.primitive.obb.extent.copy() for m in fusion.prims.values()}
+    top = block.inliers[block.inliers[:, 2] > 0.86]
+    pts = np.concatenate([top, plank.inliers])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    across = box(5, tuple((lo + hi) / 2), tuple(hi - lo))
+    across = across.model_copy(update={"inliers": pts, "inlier_count": len(pts)})
+    update = fusion.update(observation(2, [table, across], [(0, 5)], T=camera_above(0.94)))
+    assert update.dropped == 1 and update.added == 0
+    assert set(fusion.prims) == set(before)
+    for pid, extent in before.items():
+        np.testing.assert_allclose(fusion.prims[pid].primitive.obb.extent, extent, atol=0.005)
+    edges = {(e.supporter, e.supported) for e in fusion.scene_model().support_edges}
+    assert (1, 2) in edges
