@@ -171,7 +171,7 @@ def explore_env(scene: str, robot: str, views: int) -> dict[str, str]:
     centres, where the platform may go, the map's bounds; the explorer starts by itself."""
     import numpy as np
 
-    from avs.explore import scene_facts
+    from experiments.episode import scene_facts
 
     try:
         facts = scene_facts(scene, robot)

@@ -58,7 +58,7 @@ def test_tabletop_occluded_support_graph_complete_by_view_5_and_ends_by_itself(t
 def test_booth_orderings_the_seeds_support(tmp_path):
     """Fig. 4.11 / 4.12, 5 views each, view spheres around the three meeting points, a 2 cm
     map, claiming only the orderings that the 95 % bootstrap intervals of the medians
-    (``avs/bootstrap.py``) support, computed by ``avs compare`` from these episodes.
+    (``experiments/bootstrap.py``) support, computed by ``avs compare`` from these episodes.
 
     Over 10 seeds (``avs compare --seeds 10``, 2026-12-05) the intervals support, for the
     unknown voxels in the roi after 5 views, occupancy (4.233 M [4.226, 4.240]) < utility

@@ -31,9 +31,9 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from avs import evaluation
 from avs.launcher import Supervisor
 from avs.services import BY_NAME
+from experiments import evaluation
 from schemas import (
     BasePose,
     BoxQuery,
@@ -175,9 +175,8 @@ class SceneFacts:
 
 def scene_facts(scene: str, robot: str, radius: float = 1.5) -> SceneFacts:
     from avs.bounds import map_bounds
-    from avs.commands.perceive import look_target
     from services.sim.robots import ROBOTS
-    from services.sim.world import World
+    from services.sim.world import World, look_target
 
     world = World(scene, ROBOTS[robot])
     centre = look_target(world)
