@@ -103,7 +103,9 @@ class ViewRecord:
     planning_s: float
     base: list[float]
     information_gain: float = 0.0
-    reached: bool = True  # False: the platform got stuck on the way; the view is from there
+    #: goals the platform did not reach in time on the way to this view: abandoned, and
+    #: excluded from the plans that followed (``services/explorer``)
+    abandoned: int = 0
     goal: list[float] = field(default_factory=list)  # the planned platform pose (Eq. 4.2, 4.3)
     trajectory: list[list[float]] = field(default_factory=list)  # (x, y) driven, every 0.1 s
     planning_workers: int = 1  # nbv instances that evaluated the candidates
@@ -132,6 +134,7 @@ class EpisodeResult:
     views: list[ViewRecord] = field(default_factory=list)
     terminated_by: str = ""
     termination_detail: str = ""  # why, in words (no_candidates)
+    abandoned_goals: int = 0  # goals the platform did not reach in time, all episode long
     final_support_edges: list[list[str]] = field(default_factory=list)
     #: the fused model's primitives: id, kind, the body each maps to, OBB centre and extent
     final_primitives: list[dict] = field(default_factory=list)
@@ -423,7 +426,7 @@ class Episode:
         episode = started.episode
         roi = BoxQuery(box_min=roi_lo, box_max=roi_hi)
         seen: list[dict[str, np.ndarray]] = []
-        accumulated, scored = 0.0, 0
+        accumulated, scored, abandoned = 0.0, 0, 0
         while True:
             s = status.wait(
                 lambda m, n=scored: m.episode == episode
@@ -470,7 +473,8 @@ class Episode:
                 record = ViewRecord(
                     s.view - 1, support.precision, support.recall, support.f1,
                     int(stats.unknown), cost, accumulated, scores.inlier_index,
-                    scores.overlapping_index, s.planning_s, pose, float(s.predicted_gain), True,
+                    scores.overlapping_index, s.planning_s, pose, float(s.predicted_gain),
+                    s.abandoned - abandoned,
                     list(s.goal), trail.take(), nbv.workers if nbv is not None else 1,
                     stats.realised_volume if c.ig_measure == "volume" else stats.realised_rays,
                     scores.vertex_precision, scores.segments_per_body, scores.bodies_merged,
@@ -490,10 +494,11 @@ class Episode:
                      "inliers": p.inlier_count}
                     for p in scene.primitives
                 ]  # fmt: skip
-                scored = s.view
+                scored, abandoned = s.view, s.abandoned
                 if self.progress:
                     self.progress(s.view, c.views, record)
             if s.phase == "done":
+                result.abandoned_goals = s.abandoned
                 result.terminated_by = s.reason or "max_views"
                 result.termination_detail = s.detail if s.reason != "max_views" else ""
                 if s.reason not in ("quality", "max_views") and s.detail:

@@ -148,3 +148,21 @@ def test_explore_a_generated_scene(tmp_path):
     assert {("box_0", "plank_2"), ("box_1", "plank_2")} <= {
         tuple(e) for e in m["final_support_edges"]
     }
+
+
+@pytest.mark.timeout(600)
+def test_a_goal_behind_glass_is_abandoned_and_the_episode_goes_on(tmp_path):
+    """A glass wall across the room between the robot and the desk: a geom in group 3, which
+    no sensor renders but the platform collides with. Views beyond it look free to the
+    planner; the platform drives into the wall and stops there. The explorer abandons the
+    goal after twice its estimated time (plus a margin), the next plan excludes it, and the
+    episode goes on with views the platform can reach."""
+    wall = '\n    <geom name="glass" type="box" size="0.01 6 1" pos="0.8 0 1" group="3"/>'
+    m, _ = _episode(tmp_path / "glass", "--scene", str(desk(tmp_path, extra=wall)),
+                    "--views", "3")  # fmt: skip
+    views = m["views"]
+    assert m["abandoned_goals"] >= 1, [v["goal"] for v in views]
+    # a view was taken after an abandoned goal: the episode went on
+    assert any(v["abandoned"] > 0 for v in views[1:]), (m["terminated_by"], views)
+    assert all(v["base"][0] < 0.8 for v in views)  # no view from beyond the glass
+    assert m["terminated_by"] in ("max_views", "quality"), m["termination_detail"]

@@ -319,7 +319,8 @@ class ExplorerNode:
         with self.lock:
             self.act(self.core.planned(view, self.now()))
         log.info("view %d planned: %s", a.step, "terminate " + nbv.reason if nbv.terminate
-                 else f"IG {nbv.information_gain:.0f}, cost {nbv.cost:.1f} s")  # fmt: skip
+                 else f"IG {nbv.information_gain:.0f}, cost {nbv.cost:.1f} s, platform to "
+                      f"({nbv.x:.2f}, {nbv.y:.2f}, {nbv.yaw:.2f})")  # fmt: skip
 
     def look(self, target) -> None:
         self.out_gaze.put(
@@ -331,7 +332,9 @@ class ExplorerNode:
         """The platform to rest now: a zero velocity replaces the goal it drives."""
         self.out_base.put(BaseVelocity(seq=self.core.step, stamp=time.time(), v_x=0.0,
                                        timeout=0.1))  # fmt: skip
-        log.info("platform halted: %s", reason)
+        b = self.base
+        at = f" at ({b.x:.2f}, {b.y:.2f}, {b.yaw:.2f})" if b is not None else ""
+        log.info("platform halted%s: %s", at, reason)
 
     # -- lockstep ------------------------------------------------------------------------------
 
