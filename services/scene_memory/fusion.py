@@ -131,6 +131,12 @@ def inlier(points: np.ndarray, obb: Obb, margin: float) -> float:
     return inside / len(points)
 
 
+def _inside(points: np.ndarray, obb: Obb, margin: float) -> np.ndarray:
+    """Which of ``points`` lie in ``obb`` grown by ``margin`` (a mask; ``inlier`` counts)."""
+    local = (np.asarray(points, np.float64) - obb.center) @ np.asarray(obb.rotation, np.float64)
+    return np.all(np.abs(local) <= np.asarray(obb.extent) / 2 + margin, axis=1)
+
+
 def obbs_intersect(a: Obb, b: Obb, epsilon: float = 0.0) -> bool:
     """Separating-axis test of two OBBs, each grown by ``epsilon``."""
     return boxes_overlap(a.rotation, a.center, a.extent, b.rotation, b.center, b.extent, epsilon)
@@ -611,6 +617,8 @@ class Fusion:
                 if outcome == "add" or score > best:
                     outcome, target, best = decision, psi, score
             if outcome in ("same", "covered"):
+                if target.primitive.model.kind in SOLIDS:
+                    pts = self._not_annexed(target, pts, visible)
                 if self._merge_into(target, pts) and outcome == "same":
                     result.modified += 1
                 near_of.moved(target)
@@ -637,6 +645,28 @@ class Fusion:
         self.version += 1
         self.last = result
         return result
+
+    def _not_annexed(
+        self, solid: MemoryPrimitive, points: np.ndarray, visible: list[MemoryPrimitive]
+    ) -> np.ndarray:
+        """``points`` to merge into ``solid`` without those that lie outside it and inside
+        another solid the memory holds: a box's side face seen as one plane with the side of
+        the plank on it (generated scene 1012) would grow the box into the plank, and the
+        support test would then rule out the plank's edge."""
+        c = self.config
+        outside = ~_inside(points, solid.primitive.obb, c.obb_margin)
+        if not outside.any():
+            return points
+        theirs = np.zeros(len(points), bool)
+        for m in visible:
+            if (
+                m.id != solid.id
+                and m.id in self.prims
+                and m.primitive.model.kind in SOLIDS
+                and self._boxes.intersect(m.primitive.obb, solid.primitive.obb, c.plane_gap)
+            ):
+                theirs |= outside & _inside(points, m.primitive.obb, c.obb_margin)
+        return points[~theirs] if theirs.any() else points
 
     def _spans_objects(
         self,

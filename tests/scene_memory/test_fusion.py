@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from schemas import Obb, encode
+from schemas import Obb, PlaneModel, Primitive, encode
 from services.scene_memory import state
 from services.scene_memory.fusion import (
     Fusion,
@@ -276,5 +276,37 @@ def test_a_segment_across_a_support_contact_does_not_replace_the_supporter():
     assert set(fusion.prims) == set(before)
     for pid, extent in before.items():
         np.testing.assert_allclose(fusion.prims[pid].primitive.obb.extent, extent, atol=0.005)
+    edges = {(e.supporter, e.supported) for e in fusion.scene_model().support_edges}
+    assert (1, 2) in edges
+
+
+def test_a_face_seen_with_its_neighbour_s_does_not_grow_the_solid_into_it():
+    """Generated scene 1012 again: a block's side and the side of the plank on it lie in one
+    plane and are segmented as one. Most of it lies on the block (the block covers it), but
+    the plank's part of it must not be merged into the block: the block would grow into the
+    plank and the support test would rule out their edge."""
+    fusion = Fusion()
+    table = plane(0, (0.4, 1.4), (-0.4, 0.4), 0.75)
+    block = box(1, (0.9, 0.0, 0.822), (0.10, 0.066, 0.144))
+    plank = box(2, (0.9, 0.0, 0.909), (0.10, 0.066, 0.03))
+    for i in range(2):
+        fusion.update(observation(i, [table, block, plank], [(0, 1), (1, 2)],
+                                  T=camera_above(0.9 + 0.02 * i)))  # fmt: skip
+    height = fusion.prims[1].primitive.obb.extent[2]
+    rng = np.random.default_rng(3)
+    z = rng.uniform(0.75, 0.924, 1200)
+    y = rng.uniform(-0.033, 0.033, 1200)
+    pts = np.column_stack([np.full(1200, 0.95), y, z])
+    face = Primitive(
+        id=5,
+        model=PlaneModel(normal=np.array([1.0, 0, 0]), d=-0.95),
+        obb=Obb(center=np.array([0.95, 0.0, 0.837]), rotation=np.eye(3),
+                extent=np.array([0.004, 0.066, 0.174])),
+        inlier_count=len(pts),
+        inliers=pts.astype(np.float32),
+    )  # fmt: skip
+    update = fusion.update(observation(2, [table, face], [(0, 5)], T=camera_above(0.94)))
+    assert update.mapping[5] == 1  # the block covers it
+    assert fusion.prims[1].primitive.obb.extent[2] < height + 0.005
     edges = {(e.supporter, e.supported) for e in fusion.scene_model().support_edges}
     assert (1, 2) in edges
