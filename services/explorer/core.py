@@ -9,8 +9,10 @@
 - **move**: the planner drives the platform (its BaseGoal); the core fixates the view's target
   (``Look``: the gaze holds it while the platform drives). A goal the platform does not reach
   within twice its estimated time plus ``move_margin_s`` (or that it aborts) is abandoned: the
-  platform is stopped (``Halt``) and the next plan excludes that pose; ``max_abandoned`` in a
-  row end the episode.
+  platform is stopped (``Halt``), the next plan excludes that pose, and its paths go round
+  where the platform got stuck (``blocked``: its position and its last direction of travel;
+  something the map does not hold stopped it there); ``max_abandoned`` in a row end the
+  episode.
 - **settle**: platform and head still (below ``base_still``, ``head_still``) for
   ``settle_hold_s``, measured from odometry and joint states; after ``settle_timeout_s`` the
   view is taken anyway (said in ``detail``).
@@ -31,6 +33,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+#: m/s: faster than this, the platform's odometry says which way it drives (``Exploration``)
+HEADING_SPEED = 0.05
 
 
 @dataclass(frozen=True)
@@ -56,6 +61,7 @@ class Sensed:
     now: float
     base: tuple[float, float, float] | None = None  # odometry (x, y, yaw)
     base_speed: float = 0.0  # max(|v|, |ω|)
+    base_velocity: tuple[float, float] = (0.0, 0.0)  # world frame, m/s
     goal_id: str = ""
     goal_status: str = "idle"
     head_speed: float | None = None  # max |q̇| over the head joints
@@ -86,6 +92,7 @@ class Plan:
     initial: bool
     visited: np.ndarray  # (k, 3) platform poses of the views taken
     excluded: np.ndarray  # (k, 3) goals abandoned
+    blocked: np.ndarray  # (k, 4) where the platform got stuck, and the direction it drove
 
 
 @dataclass(frozen=True)
@@ -124,6 +131,8 @@ class Exploration:
     version: int = 0  # bumped on every change worth a status
     visited: list[tuple[float, float, float]] = field(default_factory=list)
     excluded: list[tuple[float, float, float]] = field(default_factory=list)
+    blocked: list[tuple[float, float, float, float]] = field(default_factory=list)
+    _heading: tuple[float, float] | None = None  # the platform's last direction of travel
     _asked: bool = False
     _retry_at: float = -math.inf
     _deadline: float = math.inf
@@ -144,7 +153,7 @@ class Exploration:
         self.views = views or self.limits.views
         self.view = self.step = self.abandoned = self._in_a_row = 0
         self.current, self.reason, self.detail = None, "", ""
-        self.realised_gain, self.visited, self.excluded = 0.0, [], []
+        self.realised_gain, self.visited, self.excluded, self.blocked = 0.0, [], [], []
         self.frame = None
         self._to("plan", now)
         return []
@@ -181,7 +190,7 @@ class Exploration:
         if view.terminate:
             self._finish(view.reason or "planner", view.detail, now)
             return []
-        self.current = view
+        self.current, self._heading = view, None
         self._deadline = now + 2 * view.cost + self.limits.move_margin_s
         self._unknown_before = self.unknown
         self._to("move", now)
@@ -210,6 +219,7 @@ class Exploration:
                     self.step, self.view == 0 and self.step == 0,
                     np.array(self.visited, float).reshape(-1, 3),
                     np.array(self.excluded, float).reshape(-1, 3),
+                    np.array(self.blocked, float).reshape(-1, 4),
                 )
             ]  # fmt: skip
         if self.phase == "move":
@@ -223,20 +233,37 @@ class Exploration:
     def _move(self, s: Sensed) -> list[Action]:
         v = self.current
         goal = f"view-{v.step}" if v.moves else ""
+        speed = math.hypot(*s.base_velocity)
+        if speed > HEADING_SPEED:
+            self._heading = (s.base_velocity[0] / speed, s.base_velocity[1] / speed)
         if goal and s.goal_id == goal and s.goal_status == "aborted":
-            return self._abandon(s.now, "the platform aborted the goal")
+            return self._abandon(s, "the platform aborted the goal")
         if not goal or (s.goal_id == goal and s.goal_status == "reached"):
             self._since, self._after = None, s.frame_seq
             self._to("settle", s.now)
             return [Look(v.target)]
         if s.now > self._deadline:
-            return self._abandon(s.now, f"not reached within {self._deadline - self._began:.0f} s")
+            return self._abandon(s, f"not reached within {self._deadline - self._began:.0f} s")
         return []
 
-    def _abandon(self, now: float, why: str) -> list[Action]:
+    def _abandon(self, s: Sensed, why: str) -> list[Action]:
+        """Give the goal up: not planned again (``excluded``), and where the platform stands
+        after driving toward it for longer than it should have, something the map does not
+        hold is in its way (``blocked``: the platform's position and its last direction of
+        travel, or the goal's direction when it never moved)."""
+        now = s.now
         self.abandoned += 1
         self._in_a_row += 1
         self.excluded.append(self.current.base)
+        if s.base is not None:
+            x, y = s.base[0], s.base[1]
+            heading = self._heading
+            if heading is None:
+                gx, gy = self.current.base[0] - x, self.current.base[1] - y
+                far = math.hypot(gx, gy)
+                heading = (gx / far, gy / far) if far > 1e-6 else None
+            if heading is not None:
+                self.blocked.append((x, y, *heading))
         self.step += 1
         if self._in_a_row >= self.limits.max_abandoned:
             self._finish("unreachable", f"{self._in_a_row} goals in a row abandoned: {why}", now)

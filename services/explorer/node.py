@@ -154,6 +154,7 @@ class ExplorerNode:
             now=self.now(),
             base=(b.x, b.y, b.yaw) if b is not None else None,
             base_speed=max(math.hypot(b.v_x, b.v_y), abs(b.v_yaw)) if b is not None else 0.0,
+            base_velocity=(b.v_x, b.v_y) if b is not None else (0.0, 0.0),
             goal_id=b.goal_id if b is not None else "",
             goal_status=b.goal_status if b is not None else "idle",
             head_speed=self.head_speed,
@@ -289,6 +290,7 @@ class ExplorerNode:
                 self.core.unknown = stats.unknown if stats is not None else None
         request = PlanRequest(
             step=a.step, initial=a.initial, visited=a.visited, excluded=a.excluded,
+            blocked=a.blocked,
             centres=self.centres(), roi_min=roi[0] if roi else None,
             roi_max=roi[1] if roi else None,
         )  # fmt: skip

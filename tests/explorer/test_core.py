@@ -85,14 +85,24 @@ def test_a_goal_not_reached_in_time_is_abandoned_and_excluded_from_the_next_plan
     x.tick(r.sensed())
     x.planned(view(0, cost=4.0), r.t)
     r.goal, r.status = "view-0", "moving"
-    r.t += 17.9  # 2 × 4 s + 10 s: not yet
-    assert x.tick(r.sensed()) == []
+    r.t += 1.0  # drives along +y (toward what stops it), then stands pushing against it
+    assert x.tick(r.sensed(base=(0.2, 0.3, 0.0), base_velocity=(0.0, 0.3))) == []
+    r.t += 16.9  # 2 × 4 s + 10 s: not yet
+    assert x.tick(r.sensed(base=(0.2, 0.4, 0.0), base_velocity=(0.01, 0.0))) == []
     r.t += 0.2
-    (halt,) = x.tick(r.sensed())
+    (halt,) = x.tick(r.sensed(base=(0.2, 0.4, 0.0)))
     assert isinstance(halt, Halt) and x.phase == "plan" and x.abandoned == 1
     (plan,) = x.tick(r.sensed())
     assert plan.step == 1 and plan.excluded.tolist() == [[0.0, 0.0, 0.0]]
+    # where it got stuck and the way it last drove: the next paths go round there
+    assert plan.blocked.tolist() == [[0.2, 0.4, 0.0, 1.0]]
     assert x.view == 0  # an abandoned goal is no view
+    # a platform that never moved is blocked toward its goal
+    x.planned(view(2, cost=1.0), r.t)
+    r.t += 12.5
+    x.tick(r.sensed(base=(0.0, 0.0, 0.0)))
+    (plan,) = x.tick(r.sensed())
+    assert plan.blocked.tolist()[1] == [0.0, 0.0, 1.0, 0.0]
 
 
 def test_goals_abandoned_in_a_row_end_the_episode():
