@@ -10,7 +10,7 @@
   (``Look``: the gaze holds it while the platform drives). A goal the platform does not reach
   within twice its estimated time plus ``move_margin_s`` (or that it aborts) is abandoned: the
   platform is stopped (``Halt``), the next plan excludes that pose, and its paths go round
-  where the platform got stuck (``blocked``: its position and its last direction of travel;
+  where the platform got stuck (``blocked``: its position and the direction it came from;
   something the map does not hold stopped it there); ``max_abandoned`` in a row end the
   episode.
 - **settle**: platform and head still (below ``base_still``, ``head_still``) for
@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: m/s: faster than this, the platform's odometry says which way it drives (``Exploration``)
-HEADING_SPEED = 0.05
+#: m: the platform's direction of travel where it got stuck is that of its last this many m
+APPROACH_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,6 @@ class Sensed:
     now: float
     base: tuple[float, float, float] | None = None  # odometry (x, y, yaw)
     base_speed: float = 0.0  # max(|v|, |ω|)
-    base_velocity: tuple[float, float] = (0.0, 0.0)  # world frame, m/s
     goal_id: str = ""
     goal_status: str = "idle"
     head_speed: float | None = None  # max |q̇| over the head joints
@@ -132,7 +131,7 @@ class Exploration:
     visited: list[tuple[float, float, float]] = field(default_factory=list)
     excluded: list[tuple[float, float, float]] = field(default_factory=list)
     blocked: list[tuple[float, float, float, float]] = field(default_factory=list)
-    _heading: tuple[float, float] | None = None  # the platform's last direction of travel
+    _track: list[tuple[float, float]] = field(default_factory=list)  # (x, y) while moving
     _asked: bool = False
     _retry_at: float = -math.inf
     _deadline: float = math.inf
@@ -190,7 +189,7 @@ class Exploration:
         if view.terminate:
             self._finish(view.reason or "planner", view.detail, now)
             return []
-        self.current, self._heading = view, None
+        self.current, self._track = view, []
         self._deadline = now + 2 * view.cost + self.limits.move_margin_s
         self._unknown_before = self.unknown
         self._to("move", now)
@@ -233,9 +232,10 @@ class Exploration:
     def _move(self, s: Sensed) -> list[Action]:
         v = self.current
         goal = f"view-{v.step}" if v.moves else ""
-        speed = math.hypot(*s.base_velocity)
-        if speed > HEADING_SPEED:
-            self._heading = (s.base_velocity[0] / speed, s.base_velocity[1] / speed)
+        if s.base is not None and (
+            not self._track or math.dist(self._track[-1], s.base[:2]) > 0.02
+        ):
+            self._track = [*self._track[-499:], (s.base[0], s.base[1])]
         if goal and s.goal_id == goal and s.goal_status == "aborted":
             return self._abandon(s, "the platform aborted the goal")
         if not goal or (s.goal_id == goal and s.goal_status == "reached"):
@@ -249,21 +249,22 @@ class Exploration:
     def _abandon(self, s: Sensed, why: str) -> list[Action]:
         """Give the goal up: not planned again (``excluded``), and where the platform stands
         after driving toward it for longer than it should have, something the map does not
-        hold is in its way (``blocked``: the platform's position and its last direction of
-        travel, or the goal's direction when it never moved)."""
+        hold is in its way (``blocked``: the platform's position and the direction of its
+        last ``APPROACH_M`` of travel, or the goal's direction when it never moved so far)."""
         now = s.now
         self.abandoned += 1
         self._in_a_row += 1
         self.excluded.append(self.current.base)
         if s.base is not None:
-            x, y = s.base[0], s.base[1]
-            heading = self._heading
-            if heading is None:
-                gx, gy = self.current.base[0] - x, self.current.base[1] - y
-                far = math.hypot(gx, gy)
-                heading = (gx / far, gy / far) if far > 1e-6 else None
-            if heading is not None:
-                self.blocked.append((x, y, *heading))
+            here = (s.base[0], s.base[1])
+            back = [p for p in self._track if math.dist(p, here) >= APPROACH_M]
+            if back:  # the way it came
+                d = (here[0] - back[-1][0], here[1] - back[-1][1])
+            else:  # the way it was to go
+                d = (self.current.base[0] - here[0], self.current.base[1] - here[1])
+            far = math.hypot(*d)
+            if far > 1e-6:
+                self.blocked.append((*here, d[0] / far, d[1] / far))
         self.step += 1
         if self._in_a_row >= self.limits.max_abandoned:
             self._finish("unreachable", f"{self._in_a_row} goals in a row abandoned: {why}", now)

@@ -154,7 +154,6 @@ class ExplorerNode:
             now=self.now(),
             base=(b.x, b.y, b.yaw) if b is not None else None,
             base_speed=max(math.hypot(b.v_x, b.v_y), abs(b.v_yaw)) if b is not None else 0.0,
-            base_velocity=(b.v_x, b.v_y) if b is not None else (0.0, 0.0),
             goal_id=b.goal_id if b is not None else "",
             goal_status=b.goal_status if b is not None else "idle",
             head_speed=self.head_speed,
@@ -294,6 +293,10 @@ class ExplorerNode:
             centres=self.centres(), roi_min=roi[0] if roi else None,
             roi_max=roi[1] if roi else None,
         )  # fmt: skip
+        if len(a.blocked):
+            x, y, dx, dy = a.blocked[-1]
+            log.info("planning round where the platform got stuck: at (%.2f, %.2f) driving "
+                     "(%.2f, %.2f)", x, y, dx, dy)  # fmt: skip
         t0 = time.monotonic()
         try:
             replies = self.node.query(self.node.keys.plan(), request, NextBestView,

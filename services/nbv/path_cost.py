@@ -117,9 +117,9 @@ class FloorMap:
         blocked: list[tuple[float, float, float]] = (),
     ) -> FloorMap:
         """Obstacles: occupied voxels between the heights ``z_range``; discs (x, y, radius) in
-        ``keep_free`` are cleared (the robot's own body, seen by its camera), then discs in
         ``blocked`` are obstacles whatever the map says (where the platform got stuck on
-        something no camera saw). Inside the xy box
+        something no camera saw), and discs in ``keep_free`` are cleared (the robot's own
+        body, seen by its camera: it stands where it stands). Inside the xy box
         ``unseen_inside`` (the scene's roi) a column never seen up to ``unseen_height`` is an
         obstacle too: the robot does not drive through the part of the scene it has not looked
         at (furniture may stand there); outside it, unknown floor is taken as free."""
@@ -137,16 +137,12 @@ class FloorMap:
             box = np.zeros_like(obstacle)
             box[lo[0] : hi[0], lo[1] : hi[1]] = True
             obstacle |= unseen & box
-        if keep_free:
-            xs = origin[0] + (np.arange(obstacle.shape[0]) + 0.5) * voxel
-            ys = origin[1] + (np.arange(obstacle.shape[1]) + 0.5) * voxel
-            for x, y, r in keep_free:
-                obstacle &= (xs[:, None] - x) ** 2 + (ys[None, :] - y) ** 2 > r * r
-        if len(blocked):
-            xs = origin[0] + (np.arange(obstacle.shape[0]) + 0.5) * voxel
-            ys = origin[1] + (np.arange(obstacle.shape[1]) + 0.5) * voxel
-            for x, y, r in blocked:
-                obstacle |= (xs[:, None] - x) ** 2 + (ys[None, :] - y) ** 2 <= r * r
+        xs = origin[0] + (np.arange(obstacle.shape[0]) + 0.5) * voxel
+        ys = origin[1] + (np.arange(obstacle.shape[1]) + 0.5) * voxel
+        for x, y, r in blocked:
+            obstacle |= (xs[:, None] - x) ** 2 + (ys[None, :] - y) ** 2 <= r * r
+        for x, y, r in keep_free:
+            obstacle &= (xs[:, None] - x) ** 2 + (ys[None, :] - y) ** 2 > r * r
         if obstacle.any():
             clearance = ndimage.distance_transform_edt(~obstacle) * voxel
         else:
