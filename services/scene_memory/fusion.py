@@ -334,17 +334,9 @@ def _first_per_voxel(a, b, voxel, single):
     (else in float64)."""
     na, nb = a.shape[0], b.shape[0]
     v32 = np.float32(voxel)
-    n = na + nb
-    size = 16
-    while size < 2 * n:
-        size <<= 1
-    mask = size - 1
-    table = np.full(size, -1, np.int64)
-    keys = np.empty(n, np.int64)
-    keep = np.empty(n, np.int64)
-    m = 0
+    keys = np.empty(na + nb, np.int64)
     offset = np.int64(1 << 20)
-    for i in range(n):
+    for i in range(na + nb):
         if i < na:
             x, y, z = np.float64(a[i, 0]), np.float64(a[i, 1]), np.float64(a[i, 2])
         else:
@@ -358,20 +350,8 @@ def _first_per_voxel(a, b, voxel, single):
         kx = np.int64(np.floor(x)) + offset
         ky = np.int64(np.floor(y)) + offset
         kz = np.int64(np.floor(z)) + offset
-        k = (kx << 42) | (ky << 21) | kz
-        keys[i] = k
-        h = _slot(k, mask)
-        while True:
-            j = table[h]
-            if j < 0:
-                table[h] = i
-                keep[m] = i
-                m += 1
-                break
-            if keys[j] == k:
-                break
-            h = (h + 1) & mask
-    return keep[:m]
+        keys[i] = (kx << 42) | (ky << 21) | kz
+    return first_of_each(keys)
 
 
 @njit(cache=True, nogil=True)
