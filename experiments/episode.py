@@ -547,12 +547,3 @@ class Episode:
         result.floor_png = str(self.c.out / "floor.png")
         result.floor_origin = [float(origin[0]), float(origin[1])]
         result.floor_cell = float(v)
-
-    def _wait_integrated(self, session, frames: int) -> None:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            stats = self._query(session, self.keys.occupancy("stats"), None, OccupancyStats)
-            if stats.frames_integrated + stats.frames_skipped >= frames:
-                return
-            time.sleep(0.05)
-        raise TimeoutError("the scene memory did not integrate the frame")
