@@ -6,7 +6,8 @@ utility --fusion sg --views 6``, both as the user runs them (separate processes)
 Prints one row per scene and a summary; writes ``DIR/generalization.json`` and
 ``DIR/generalization.png`` (final support F1 and InlierIndex per scene). A scene whose run
 crashes counts as F1 0 in the means; ``inlier_index_mean`` is the mean of each episode's final
-InlierIndex. Support F1 is the honest edge F1 (avs/evaluation.py: every perceived edge counts).
+InlierIndex. Support F1 is the honest edge F1 (experiments/evaluation.py: every perceived edge
+counts).
 
 Last line: scenes=<n> crashed=<n> ended_at_view1=<n> f1_view1_mean=<x> f1_final_mean=<x>
 f1_final_p10=<x> inlier_index_mean=<x>

@@ -2,8 +2,9 @@
 ``--scenes`` − 1 generated table-top scenes (seeds 1000, 1001, …; ``avs scene generate``), each
 explored both ways, one after the other on the same machine:
 
-- **lockstep**: the CLI episode (``avs explore --scene S --views V``, ``avs/explore.py``): the
-  orchestrator steps the sim; its own per-view scoring (the sim's segmentation of each view).
+- **lockstep**: the CLI episode (``avs explore --scene S --views V``,
+  ``experiments/episode.py``): the explorer service steps the sim and holds after each view;
+  the episode's evaluator scores it (the sim's segmentation of each view).
   Time to F1 ≥ 0.9: from the services' start to the view whose score first reached it.
 - **live**: ``avs up --explore --scene S --views V`` as a user starts it (no ``AVS_*`` variable
   passed on), on the wall clock with the sensor models, view registration and the gaze
@@ -71,7 +72,7 @@ def scenes(n: int, first_seed: int, out: Path) -> list[tuple[str, str]]:
 
 def lockstep(scene: str, views: int, out: Path) -> dict:
     """The CLI episode, in this process; F1 per view with its time since the services' start."""
-    from avs.explore import Episode, EpisodeConfig
+    from experiments.episode import Episode, EpisodeConfig
 
     curve: list[tuple[float, float]] = []
     t0 = time.monotonic()

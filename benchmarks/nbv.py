@@ -48,14 +48,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from avs.commands.perceive import look_target  # noqa: E402
 from services.nbv import information_gain as ig  # noqa: E402
 from services.nbv.planner import Planner, PlannerConfig  # noqa: E402
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap  # noqa: E402
 from services.sim import capture  # noqa: E402
 from services.sim.render import CameraRenderer  # noqa: E402
 from services.sim.robots import ARMAR6  # noqa: E402
-from services.sim.world import World  # noqa: E402
+from services.sim.world import World, look_target  # noqa: E402
 
 VOXEL = 0.01
 OCTOMAP_EVERY = 8  # castRay on the rays of every 8th view (a Python call per ray)

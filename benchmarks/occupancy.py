@@ -68,13 +68,12 @@ sys.path.insert(0, str(ROOT))
 
 import pyoctomap  # noqa: E402
 
-from avs.commands.perceive import look_target  # noqa: E402
 from services.scene_memory.memory import MemoryConfig  # noqa: E402
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap  # noqa: E402
 from services.sim import capture  # noqa: E402
 from services.sim.render import CameraRenderer  # noqa: E402
 from services.sim.robots import ARMAR6  # noqa: E402
-from services.sim.world import World  # noqa: E402
+from services.sim.world import World, look_target  # noqa: E402
 
 MAX_RANGE = 3.0
 
@@ -230,7 +229,7 @@ def inputs(frames: int, degrees: float) -> list[tuple]:
 
 def kitchen_case(frames: int, degrees: float) -> tuple:
     """("kitchen", 0.01, its pan's frames, lo, hi): the live stack's kitchen map
-    (avs/explore.py's scene_facts) on the 2 cm grid."""
+    (experiments/episode.py's scene_facts) on the 2 cm grid."""
     from avs.bounds import map_bounds
 
     world, views = pan("kitchen", frames, degrees)

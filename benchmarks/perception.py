@@ -65,15 +65,14 @@ sys.path.insert(0, str(ROOT))
 import open3d as o3d  # noqa: E402
 import pyransac3d as pyrsc  # noqa: E402
 
-from avs import evaluation  # noqa: E402
-from avs.commands.perceive import look_target  # noqa: E402
 from benchmarks._threads import blas_threads  # noqa: E402
+from experiments import evaluation  # noqa: E402
 from services.perception import ransac  # noqa: E402
 from services.perception.pipeline import Perception, observation  # noqa: E402
 from services.sim import capture  # noqa: E402
 from services.sim.render import CameraRenderer  # noqa: E402
 from services.sim.robots import ARMAR6  # noqa: E402
-from services.sim.world import World  # noqa: E402
+from services.sim.world import World, look_target  # noqa: E402
 
 KINDS = ("fit_plane", "fit_cylinder", "fit_sphere")
 

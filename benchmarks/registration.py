@@ -63,7 +63,6 @@ sys.path.insert(0, str(ROOT))
 import open3d as o3d  # noqa: E402
 
 from avs.commands.fuse import feasible, path_bases, spread  # noqa: E402
-from avs.commands.perceive import look_target  # noqa: E402
 from services.scene_memory.memory import MemoryConfig, SceneMemory  # noqa: E402
 from services.scene_memory.occupancy import OccupancyConfig  # noqa: E402
 from services.scene_memory.registration import (  # noqa: E402
@@ -78,7 +77,7 @@ from services.scene_memory.voxel_map import means  # noqa: E402
 from services.sim import capture  # noqa: E402
 from services.sim.render import CameraRenderer  # noqa: E402
 from services.sim.robots import ARMAR6  # noqa: E402
-from services.sim.world import World  # noqa: E402
+from services.sim.world import World, look_target  # noqa: E402
 
 
 def views(n: int, seed: int):

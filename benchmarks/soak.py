@@ -236,12 +236,11 @@ def host_reference(out: mp.Queue, repeats: int = 9) -> None:
     """The machine's speed now: perception's CPU time on one frame of the soak's scene, from
     the robot's start, alone (median of ``repeats``). Shared machines change speed by half
     within an hour; the soak's rates are read against it."""
-    from avs.commands.perceive import look_target
     from services.perception.pipeline import Perception
     from services.sim import capture
     from services.sim.render import CameraRenderer
     from services.sim.robots import ARMAR6
-    from services.sim.world import World
+    from services.sim.world import World, look_target
 
     world = World("tabletop_occluded", ARMAR6)
     world.look_at(look_target(world))
@@ -343,7 +342,7 @@ def main() -> int:
     if args.minutes < 1:
         p.error("--minutes must be ≥ 1")
     args.out.mkdir(parents=True, exist_ok=True)
-    from avs.explore import scene_facts
+    from experiments.episode import scene_facts
 
     facts = scene_facts("tabletop_occluded", "armar6")
     target = np.asarray(facts.centre, float)

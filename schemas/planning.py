@@ -81,17 +81,20 @@ MAX_VISITED = 10_000
 MAX_CENTRES = 100
 #: m: a candidate view whose platform pose is this close to an excluded one is not planned
 EXCLUDED_RADIUS = 0.25
+#: m: the radius of the obstacle a path planner marks where the platform got stuck
+BLOCKED_RADIUS = 0.1
 
 
 class PlanRequest(Message):
     """A request on ``nbv/plan``: plan step ``step`` from the robot's current pose. ``initial``
-    only aims the head at the view-sphere centre from where the robot stands (the first view);
-    ``visited`` are the platform poses of the views taken so far (for the top-down sampling's
-    largest arc); with ``execute`` the planner also sends the BaseGoal and the HeadCommand;
-    ``excluded``: goals the platform could not reach, not planned again; ``centres`` and the
-    roi, where given, replace the planner's settings (the explorer's scene: an episode's
-    facts travel with its requests). An ``initial`` request begins an episode: λ_quality's
-    reference, the first step's best gain, is taken anew."""
+        only aims the head at the view-sphere centre from where the robot stands (the first view);
+        ``visited`` are the platform poses of the views taken so far (for the top-down sampling's
+        largest arc); with ``execute`` the planner also sends the BaseGoal and the HeadCommand;
+        ``excluded``: goals the platform could not reach, not planned again; ``blocked``: where it
+    got stuck on the way (an obstacle for the paths that follow); ``centres`` and the
+        roi, where given, replace the planner's settings (the explorer's scene: an episode's
+        facts travel with its requests). An ``initial`` request begins an episode: λ_quality's
+        reference, the first step's best gain, is taken anew."""
 
     step: int = Field(0, ge=0, le=MAX_PLAN_STEP)
     initial: bool = False
@@ -104,6 +107,14 @@ class PlanRequest(Message):
         default_factory=lambda: np.zeros((0, 3)),
         description="platform poses (x, y, yaw) not to plan a view from: goals the platform "
         "did not reach (a candidate within EXCLUDED_RADIUS of one is unreachable)",
+    )
+
+    blocked: Annotated[np.ndarray, Array("float64", (None, 4)), Finite()] = Field(
+        default_factory=lambda: np.zeros((0, 4)),
+        description="where the platform got stuck on what the map does not hold (a glass "
+        "pane, a wall no camera saw), as (x, y, dx, dy): its position and the unit direction "
+        "it drove; the path planner marks an obstacle of BLOCKED_RADIUS just ahead of its "
+        "footprint there",
     )
 
     centres: Annotated[np.ndarray, Array("float64", (None, 3)), Finite()] = Field(

@@ -1,11 +1,11 @@
-"""The bootstrap interval of a median (avs/bootstrap.py) on samples with known answers."""
+"""The bootstrap interval of a median (experiments/bootstrap.py) on samples with known answers."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from avs.bootstrap import Interval, median_interval, orderings
+from experiments.bootstrap import Interval, median_interval, orderings
 
 
 def test_the_interval_covers_the_true_median_in_most_draws():

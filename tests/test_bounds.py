@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from avs.bounds import CEILING_Z, FLOOR_Z, map_bounds
-from avs.explore import scene_facts
+from experiments.episode import scene_facts
 
 ROI = (np.array([1.0, -0.5, 0.7]), np.array([1.8, 0.5, 1.1]))
 CENTRE = np.array([[1.4, 0.0, 0.9]])

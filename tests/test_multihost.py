@@ -13,7 +13,7 @@ import threading
 
 import pytest
 
-from avs.explore import EPISODE_SERVICES, Episode, EpisodeConfig
+from experiments.episode import EPISODE_SERVICES, Episode, EpisodeConfig
 
 BRIDGE, NET = "avsbr0", "10.77.0"
 

@@ -265,6 +265,39 @@ def test_a_batched_input_gets_everything_that_waited_in_one_call(node, client):
         node.subscribe(keys.imu(), ImuSample, handler, batch=True)  # no queue
 
 
+def test_an_input_undeclared_before_the_node_stops_taking_samples(node, client):
+    """``subscribe`` and ``inbox`` return their subscription: ``undeclare()`` ends it (an
+    input needed only for a while, e.g. the explorer's frames while a view is captured), and
+    a queued input's thread ends with it; the node's other inputs go on."""
+    keys = Keys()
+    direct: list[int] = []
+    queued: list[int] = []
+    kept: list[int] = []
+    subs = [
+        node.subscribe(keys.imu(), ImuSample, lambda m: direct.append(m.seq)),
+        node.subscribe(keys.imu(), ImuSample, lambda m: queued.append(m.seq), queue=4,
+                       name="queued"),
+        node.inbox(keys.imu(), ImuSample, size=4),
+    ]  # fmt: skip
+    node.subscribe(keys.imu(), ImuSample, lambda m: kept.append(m.seq))
+    publisher = matched_publisher(client, keys.imu())
+    publisher.put(encode(imu(0)))
+    wait_for(lambda: direct == [0] and queued == [0] and kept == [0], 10, "the first sample")
+    assert [m.seq for m in subs[2].take()] == [0]
+    pumps = [t for t in threading.enumerate() if t.name.endswith(":queued")]
+    assert len(pumps) == 1
+    for sub in subs:
+        sub.undeclare()
+    sub.undeclare()  # twice: nothing happens
+    pumps[0].join(5)
+    assert not pumps[0].is_alive()
+    publisher.put(encode(imu(1)))
+    wait_for(lambda: kept == [0, 1], 10, "the second sample on the kept input")
+    time.sleep(0.2)
+    assert direct == [0] and queued == [0] and subs[2].take() == []
+    assert len(node._subscribers) == 1
+
+
 def test_an_inbox_gives_its_loop_the_valid_samples_in_order_and_counts_the_rest(node, client):
     """``Node.inbox``: no thread of its own; ``take()`` returns what came since the last call,
     valid ones in order, garbage counted; a ring found full is counted as ``inbox_full``."""
@@ -308,7 +341,7 @@ def test_a_loop_taking_from_an_inbox_while_the_node_closes_ends_quietly(router):
             except Exception as e:  # what the test looks for
                 errors.append(repr(e))
 
-        node._start_thread(loop, "closing:loop")
+        node.start_thread(loop, "closing:loop")
         node.close()
     assert errors == []
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import logging
 
-from avs.explore import Episode, ViewRecord
+from experiments.episode import Episode, ViewRecord
 
 
 def _view(i: int, predicted: float, realised: float) -> ViewRecord:

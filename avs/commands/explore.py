@@ -1,14 +1,16 @@
 """``avs explore``: one exploration episode with every service as a local process (sim in
-lockstep, perception, scene memory, nbv over a loopback Zenoh router): ``DIR/metrics.json``,
+lockstep, perception, scene memory, nbv, the explorer stepping the sim, over a loopback Zenoh
+router; ``experiments/episode.py`` scores each view from outside): ``DIR/metrics.json``,
 ``f1.png``, ``unknown_voxels.png``, ``path_cost.png``, ``views_map.png`` and a self-contained
 ``report.html``. ``avs compare``: several strategies over several seeds, side by side (thesis
 Fig. 4.8, 4.11, 4.12): per strategy the final views' support F1, unknown voxels and path cost
 as the median over the seeds with its 95 % bootstrap interval, and which orderings of the
-strategies the intervals support (apart) and which they leave unresolved (``avs/bootstrap.py``;
-``DIR/metrics.json``: ``runs`` per strategy, ``summary`` {median, ci95, n} per strategy and
-metric, ``orderings``); with several fusion modes (``--fusion pc,sg,pc+sg``) every strategy
-runs with each, runs are keyed ``strategy/fusion``, and ``fusion_f1.png`` / ``fusion_f1.json``
-give the support-graph F1 per view of each (median and min-max over the seeds: Fig. 4.8)."""
+strategies the intervals support (apart) and which they leave unresolved
+(``experiments/bootstrap.py``; ``DIR/metrics.json``: ``runs`` per strategy, ``summary``
+{median, ci95, n} per strategy and metric, ``orderings``); with several fusion modes
+(``--fusion pc,sg,pc+sg``) every strategy runs with each, runs are keyed ``strategy/fusion``,
+and ``fusion_f1.png`` / ``fusion_f1.json`` give the support-graph F1 per view of each (median
+and min-max over the seeds: Fig. 4.8)."""
 
 from __future__ import annotations
 
@@ -125,7 +127,7 @@ def _info(r) -> str:
 def run_episode(config, label: str, lines: bool = False, display=None) -> dict:
     """One episode; its progress as a task of ``display`` (a started rich Progress), or
     (``lines``, episodes running side by side in other processes) one line per view."""
-    from avs.explore import Episode
+    from experiments.episode import Episode
 
     if lines:
 
@@ -157,7 +159,7 @@ def episode(config, label: str, verbose: bool = False) -> dict:
 
 
 def _config(args: argparse.Namespace, **kw):
-    from avs.explore import EpisodeConfig
+    from experiments.episode import EpisodeConfig
 
     kw.setdefault("fusion", args.fusion)
     return EpisodeConfig(
@@ -170,7 +172,7 @@ def _config(args: argparse.Namespace, **kw):
 def write_outputs(
     out: Path, runs: dict[str, list[dict]], title: str, first: tuple[Path, ...] = ()
 ) -> Path:
-    from avs import report
+    from experiments import report
 
     images = [*first, *report.series_plots(runs, out)]
     images.append(report.map_plot({k: v[0] for k, v in runs.items()}, out))
@@ -268,7 +270,7 @@ def _compare(args: argparse.Namespace) -> int:
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     title, first = f"{args.scene}: strategies compared", ()
     if len(fusions) > 1:
-        from avs import report
+        from experiments import report
 
         first = (report.fusion_plot(runs, args.out),)
         title = f"{args.scene}: strategies and fusion modes compared (Fig. 4.8)"
@@ -289,9 +291,9 @@ COMPARED = (
 
 def summarise_runs(runs: dict[str, list[dict]]) -> tuple[dict, list]:
     """Per strategy and metric of the final views, the median over the seeds and its 95 %
-    bootstrap interval (``avs/bootstrap.py``); and every pair of strategies per metric, the
+    bootstrap interval (``experiments/bootstrap.py``); and every pair of strategies per metric, the
     better median first, with whether the intervals support that ordering."""
-    from avs.bootstrap import median_interval, orderings
+    from experiments.bootstrap import median_interval, orderings
 
     summary: dict[str, dict] = {}
     for k, episodes in runs.items():
@@ -310,7 +312,7 @@ def compare_json(runs: dict[str, list[dict]], summary: dict, orders: list) -> di
     """``avs compare``'s metrics.json: every episode (``runs``, keyed by strategy, or
     strategy/fusion), the ``summary`` per key and metric ({median, ci95: [lo, hi], n}) and
     the ``orderings`` with whether the intervals support them."""
-    from avs.bootstrap import RESAMPLES, SEED
+    from experiments.bootstrap import RESAMPLES, SEED
 
     return {
         "runs": runs,
@@ -338,7 +340,7 @@ def summary_lines(runs: dict[str, list[dict]], summary: dict, orders: list) -> l
                          f"[{f.format(iv.lo)}, {f.format(iv.hi)}]")  # fmt: skip
         lines.append(f"{k:16s} " + "  ".join(parts)
                      + f"  views {[len(e['views']) for e in runs[k]]}")  # fmt: skip
-    from avs.bootstrap import MIN_VALUES
+    from experiments.bootstrap import MIN_VALUES
 
     names = {key: (name, higher) for key, name, higher in COMPARED}
     unresolved = "not resolved (intervals overlap"

@@ -132,9 +132,8 @@ def driven(odometry, start: tuple[float, float, float], goal: tuple[float, float
 
 def run_fusion(args: argparse.Namespace, progress=None):
     """The fusion run itself; returns (per-view metrics, the memory, the ground truth)."""
-    from avs import evaluation
     from avs.bounds import map_bounds
-    from avs.commands.perceive import look_target
+    from experiments import evaluation
     from services.common.poses import pose_difference
     from services.perception.pipeline import Perception, cloud_observation, observation
     from services.scene_memory.fusion import FusionConfig
@@ -145,7 +144,7 @@ def run_fusion(args: argparse.Namespace, progress=None):
     from services.sim.render import CameraRenderer
     from services.sim.robots import ROBOTS
     from services.sim.sensors import EncoderModel, Odometry
-    from services.sim.world import World
+    from services.sim.world import World, look_target
 
     world = World(args.scene, ROBOTS[args.robot])
     centre = look_target(world)

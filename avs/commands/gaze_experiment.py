@@ -65,8 +65,8 @@ def _bar(label: str):
 
 
 def experiment(config, out: Path) -> dict:
-    from avs.report import gaze_plots
     from experiments.gaze import run_object, summarise
+    from experiments.report import gaze_plots
 
     out.mkdir(parents=True, exist_ok=True)
     mode = "stabilised" if config.stabilize else "unstabilised"
@@ -117,8 +117,8 @@ def success_table(summaries: dict[str, dict]) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from avs.report import gaze_plots
     from experiments.gaze import GazeExperimentConfig
+    from experiments.report import gaze_plots
 
     def config(on: bool, exposure: str) -> GazeExperimentConfig:
         return GazeExperimentConfig(

@@ -96,8 +96,8 @@ def table(off: list[dict], on: list[dict]) -> str:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from avs.report import grasp_plots
     from experiments.grasp import GraspExperimentConfig
+    from experiments.report import grasp_plots
 
     base = GraspExperimentConfig(
         scene=args.scene, speed=args.speed, sway=(args.sway, 0.5), sensors=args.noise == "on",

@@ -44,22 +44,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_perceive)
 
 
-def look_target(world) -> np.ndarray:
-    """The roi's centre, or the centre of the scene's objects."""
-    if world.info.roi is not None:
-        return (world.info.roi[0] + world.info.roi[1]) / 2
-    return np.mean([world.data.xpos[world.model.body(n).id] for n in world.info.objects], axis=0)
-
-
 def _perceive(args: argparse.Namespace) -> int:
-    from avs import evaluation
     from avs.commands.echo import to_jsonable
+    from experiments import evaluation
     from services.perception.pipeline import Perception, observation
     from services.sim import capture
     from services.sim.render import CameraRenderer
     from services.sim.robots import ROBOTS
     from services.sim.scene import SceneError
-    from services.sim.world import AIM_JOINTS, World
+    from services.sim.world import AIM_JOINTS, World, look_target
 
     try:
         world = World(args.scene, ROBOTS[args.robot])

@@ -37,7 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from avs.explore import EpisodeConfig
+    from experiments.episode import EpisodeConfig
 
     log_to(args.out / "logs", "run")
     on = args.noise == "on"

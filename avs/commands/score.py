@@ -32,7 +32,7 @@ def score(session, keys, timeout: float) -> dict:
     """The scores of what the running system holds now (see the module's docstring)."""
     import numpy as np
 
-    from avs import evaluation
+    from experiments import evaluation
     from schemas import GroundTruth, GroundTruthQuery, PointCloud, SceneModel, decode, encode
 
     def ask(key: str, schema, payload=None):

@@ -21,8 +21,6 @@ import signal
 import threading
 from pathlib import Path
 
-import numpy as np
-
 from avs.commands._args import positive_float
 from avs.launcher import HUNG_AFTER_S, Supervisor
 from avs.router import DEFAULT_ENDPOINT, RouterError
@@ -171,7 +169,9 @@ def explore_env(scene: str, robot: str, views: int) -> dict[str, str]:
     """What the services need to know of the scene to explore it on their own (the settings
     ``avs explore`` hands them too): the roi whose unknown voxels count, the view spheres'
     centres, where the platform may go, the map's bounds; the explorer starts by itself."""
-    from avs.explore import scene_facts
+    import numpy as np
+
+    from experiments.episode import scene_facts
 
     try:
         facts = scene_facts(scene, robot)

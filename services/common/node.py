@@ -70,12 +70,26 @@ class Output:
         self._publisher.undeclare()
 
 
-class Inbox(Generic[M]):
+class Subscription:
+    """A declared input (``Node.subscribe``, ``Node.inbox``) that can go before the node does:
+    ``undeclare()`` ends it (a queued or latest-only input's thread ends with it)."""
+
+    def __init__(self, node: Node, subscriber: Any) -> None:
+        self._node, self._subscriber = node, subscriber
+
+    def undeclare(self) -> None:
+        if self._subscriber in self._node._subscribers:
+            self._node._subscribers.remove(self._subscriber)
+            self._subscriber.undeclare()
+
+
+class Inbox(Subscription, Generic[M]):
     """A polled input (``Node.inbox``): no callback and no thread; the service's own loop takes
     what came, validated and counted like a subscription's samples."""
 
     def __init__(self, node: Node, subscriber: Any, message_type: type[M], size: int) -> None:
-        self._node, self._subscriber, self._type, self._size = node, subscriber, message_type, size
+        super().__init__(node, subscriber)
+        self._type, self._size = message_type, size
         self._key = str(subscriber.key_expr)
 
     def _waiting(self) -> list[zenoh.Sample]:
@@ -95,7 +109,7 @@ class Inbox(Generic[M]):
     def _valid(self, sample: zenoh.Sample) -> M | None:
         key = str(sample.key_expr)
         self._node.metrics.count_in(key)
-        return self._node._decode(key, sample.payload.to_bytes(), self._type)
+        return self._node.decode(key, sample.payload.to_bytes(), self._type)
 
     def take(self) -> list[M]:
         """The valid messages that came since the last call, oldest first (a full ring is
@@ -162,7 +176,8 @@ class Node:
 
     # -- inputs -------------------------------------------------------------------------------
 
-    def _decode(self, key: str, payload: bytes, expect: type[M]) -> M | None:
+    def decode(self, key: str, payload: bytes, expect: type[M]) -> M | None:
+        """``payload`` as an ``expect`` message, or None: dropped and counted by its fault."""
         try:
             message = decode(payload, expect)
         except CodecError as e:
@@ -210,7 +225,7 @@ class Node:
         accept: Callable[[bytes], bool] | None = None,
         nice: int | None = None,
         batch: bool = False,
-    ) -> None:
+    ) -> Subscription:
         """Call ``handler`` with every valid ``message_type`` published on ``key`` (and the
         sample's key, with ``with_key``).
 
@@ -239,7 +254,7 @@ class Node:
             payload = sample.payload.to_bytes()
             if accept is not None and not accept(payload):
                 return k, None
-            return k, self._decode(k, payload, message_type)
+            return k, self.decode(k, payload, message_type)
 
         def on_sample(sample: zenoh.Sample) -> None:
             k, message = validated(sample)
@@ -248,7 +263,7 @@ class Node:
 
         if not latest_only and queue <= 0:
             self._subscribers.append(self.session.declare_subscriber(key, on_sample))
-            return
+            return Subscription(self, self._subscribers[-1])
         ring = LATEST_RING if latest_only else queue
         subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
         self._subscribers.append(subscriber)
@@ -288,7 +303,8 @@ class Node:
                 except zenoh.ZError:  # channel closed: undeclared or session closed
                     return
 
-        self._start_thread(pump, f"{self.service}:{name}")
+        self.start_thread(pump, f"{self.service}:{name}")
+        return Subscription(self, subscriber)
 
     def inbox(self, key: str, message_type: type[M], size: int = LATEST_RING) -> Inbox[M]:
         """``key``'s samples kept for a loop of the service's own to take (``Inbox.take``), with
@@ -372,14 +388,17 @@ class Node:
                 except CodecError:
                     text = text.decode(errors="replace")
                 raise RemoteError(f"{selector}: {text}")
-            message = self._decode(selector, reply.ok.payload.to_bytes(), reply_type)
+            message = self.decode(selector, reply.ok.payload.to_bytes(), reply_type)
             if message is not None:
                 replies.append(message)
         return replies
 
     # -- life cycle ---------------------------------------------------------------------------
 
-    def _start_thread(self, target: Callable[[], None], name: str) -> threading.Thread:
+    def start_thread(self, target: Callable[[], None], name: str) -> threading.Thread:
+        """Run ``target`` on a daemon thread named ``name`` (``service:what``), joined when the
+        node stops taking inputs (``stop_inputs``)."""
+
         def named() -> None:
             os_thread_name(name.split(":", 1)[-1])  # the process says which service
             target()
@@ -410,7 +429,7 @@ class Node:
                     delay = 0
                 self._stop.wait(delay)
 
-        self._start_thread(loop, f"{self.service}:{name}")
+        self.start_thread(loop, f"{self.service}:{name}")
 
     @property
     def stopping(self) -> bool:
@@ -420,6 +439,10 @@ class Node:
 
     def stop(self) -> None:
         self._stop.set()
+
+    def wait(self, seconds: float) -> bool:
+        """Sleep ``seconds`` or until the node stops (True: it did)."""
+        return self._stop.wait(seconds)
 
     def install_signal_handlers(self) -> None:
         """SIGINT and SIGTERM stop the node (main thread only). The handler only notes the

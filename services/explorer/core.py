@@ -9,8 +9,10 @@
 - **move**: the planner drives the platform (its BaseGoal); the core fixates the view's target
   (``Look``: the gaze holds it while the platform drives). A goal the platform does not reach
   within twice its estimated time plus ``move_margin_s`` (or that it aborts) is abandoned: the
-  platform is stopped (``Halt``) and the next plan excludes that pose; ``max_abandoned`` in a
-  row end the episode.
+  platform is stopped (``Halt``), the next plan excludes that pose, and its paths go round
+  where the platform got stuck (``blocked``: its position and the direction it came from;
+  something the map does not hold stopped it there); ``max_abandoned`` in a row end the
+  episode.
 - **settle**: platform and head still (below ``base_still``, ``head_still``) for
   ``settle_hold_s``, measured from odometry and joint states; after ``settle_timeout_s`` the
   view is taken anyway (said in ``detail``).
@@ -31,6 +33,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+
+#: m: the platform's direction of travel where it got stuck is that of its last this many m
+APPROACH_M = 0.3
 
 
 @dataclass(frozen=True)
@@ -86,6 +91,7 @@ class Plan:
     initial: bool
     visited: np.ndarray  # (k, 3) platform poses of the views taken
     excluded: np.ndarray  # (k, 3) goals abandoned
+    blocked: np.ndarray  # (k, 4) where the platform got stuck, and the direction it drove
 
 
 @dataclass(frozen=True)
@@ -124,6 +130,8 @@ class Exploration:
     version: int = 0  # bumped on every change worth a status
     visited: list[tuple[float, float, float]] = field(default_factory=list)
     excluded: list[tuple[float, float, float]] = field(default_factory=list)
+    blocked: list[tuple[float, float, float, float]] = field(default_factory=list)
+    _track: list[tuple[float, float]] = field(default_factory=list)  # (x, y) while moving
     _asked: bool = False
     _retry_at: float = -math.inf
     _deadline: float = math.inf
@@ -144,7 +152,7 @@ class Exploration:
         self.views = views or self.limits.views
         self.view = self.step = self.abandoned = self._in_a_row = 0
         self.current, self.reason, self.detail = None, "", ""
-        self.realised_gain, self.visited, self.excluded = 0.0, [], []
+        self.realised_gain, self.visited, self.excluded, self.blocked = 0.0, [], [], []
         self.frame = None
         self._to("plan", now)
         return []
@@ -181,7 +189,7 @@ class Exploration:
         if view.terminate:
             self._finish(view.reason or "planner", view.detail, now)
             return []
-        self.current = view
+        self.current, self._track = view, []
         self._deadline = now + 2 * view.cost + self.limits.move_margin_s
         self._unknown_before = self.unknown
         self._to("move", now)
@@ -210,6 +218,7 @@ class Exploration:
                     self.step, self.view == 0 and self.step == 0,
                     np.array(self.visited, float).reshape(-1, 3),
                     np.array(self.excluded, float).reshape(-1, 3),
+                    np.array(self.blocked, float).reshape(-1, 4),
                 )
             ]  # fmt: skip
         if self.phase == "move":
@@ -223,20 +232,39 @@ class Exploration:
     def _move(self, s: Sensed) -> list[Action]:
         v = self.current
         goal = f"view-{v.step}" if v.moves else ""
+        if s.base is not None and (
+            not self._track or math.dist(self._track[-1], s.base[:2]) > 0.02
+        ):
+            self._track = [*self._track[-499:], (s.base[0], s.base[1])]
         if goal and s.goal_id == goal and s.goal_status == "aborted":
-            return self._abandon(s.now, "the platform aborted the goal")
+            return self._abandon(s, "the platform aborted the goal")
         if not goal or (s.goal_id == goal and s.goal_status == "reached"):
             self._since, self._after = None, s.frame_seq
             self._to("settle", s.now)
             return [Look(v.target)]
         if s.now > self._deadline:
-            return self._abandon(s.now, f"not reached within {self._deadline - self._began:.0f} s")
+            return self._abandon(s, f"not reached within {self._deadline - self._began:.0f} s")
         return []
 
-    def _abandon(self, now: float, why: str) -> list[Action]:
+    def _abandon(self, s: Sensed, why: str) -> list[Action]:
+        """Give the goal up: not planned again (``excluded``), and where the platform stands
+        after driving toward it for longer than it should have, something the map does not
+        hold is in its way (``blocked``: the platform's position and the direction of its
+        last ``APPROACH_M`` of travel, or the goal's direction when it never moved so far)."""
+        now = s.now
         self.abandoned += 1
         self._in_a_row += 1
         self.excluded.append(self.current.base)
+        if s.base is not None:
+            here = (s.base[0], s.base[1])
+            back = [p for p in self._track if math.dist(p, here) >= APPROACH_M]
+            if back:  # the way it came
+                d = (here[0] - back[-1][0], here[1] - back[-1][1])
+            else:  # the way it was to go
+                d = (self.current.base[0] - here[0], self.current.base[1] - here[1])
+            far = math.hypot(*d)
+            if far > 1e-6:
+                self.blocked.append((*here, d[0] / far, d[1] / far))
         self.step += 1
         if self._in_a_row >= self.limits.max_abandoned:
             self._finish("unreachable", f"{self._in_a_row} goals in a row abandoned: {why}", now)

@@ -26,7 +26,6 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-import zenoh
 
 from schemas import (
     BasePose,
@@ -41,11 +40,13 @@ from schemas import (
     NextBestView,
     OccupancyStats,
     PlanRequest,
+    RgbdFrame,
+    SceneModel,
     SimControl,
     SimStatus,
 )
 from schemas.codec import peek
-from services.common.node import Inbox, Node, RemoteError
+from services.common.node import Inbox, Node, RemoteError, Subscription
 from services.explorer.config import ExplorerSettings
 from services.explorer.core import Exploration, Halt, Limits, Look, Plan, Render, Sensed, View
 
@@ -93,8 +94,8 @@ class ExplorerNode:
         # (``watch``): an idle explorer receives nothing (subscribed all along, they took 10 % of
         # a core in the live stack)
         self.joints: Inbox[JointState] | None = None
-        self.states: list = []
-        self.watching: list = []
+        self.states: list[Subscription] = []
+        self.watching: list[Subscription] = []
         self.stats_at = -math.inf
         self.out_status = node.publisher(k.explore_status())
         self.out_gaze = node.publisher(k.gaze_target())
@@ -102,7 +103,7 @@ class ExplorerNode:
         node.serve(k.explore_control(), self.on_control, ExploreControl)
         if settings.autostart:
             self.core.start(self.now(), settings.views)
-        node._start_thread(self.loop, "explorer:loop")
+        node.start_thread(self.loop, "explorer:loop")
 
     # -- inputs (light: Zenoh's callbacks) -----------------------------------------------------
 
@@ -137,7 +138,7 @@ class ExplorerNode:
     def idle(self, seconds: float) -> None:
         """Wait without stepping; in lockstep the clock goes on by the wall time waited."""
         t0 = time.monotonic()
-        self.node._stop.wait(seconds)
+        self.node.wait(seconds)
         self.clock += time.monotonic() - t0
 
     def sense(self) -> Sensed:
@@ -217,18 +218,9 @@ class ExplorerNode:
         """Subscribe to odometry (decoded in the callback: small, 100 a second) and the joint
         states (kept in a ring of 4, the newest decoded when asked), or undeclare them."""
         if on and not self.states:
-            k, session = self.node.keys, self.node.session
-            joints = session.declare_subscriber(k.joints(), zenoh.handlers.RingChannel(4))
-            self.joints = Inbox(self.node, joints, JointState, 4)
-
-            def base(sample: zenoh.Sample) -> None:
-                key = str(sample.key_expr)
-                self.node.metrics.count_in(key)
-                message = self.node._decode(key, sample.payload.to_bytes(), BasePose)
-                if message is not None:
-                    self.on_base(message)
-
-            self.states = [joints, session.declare_subscriber(k.base_state(), base)]
+            k = self.node.keys
+            self.joints = self.node.inbox(k.joints(), JointState, 4)
+            self.states = [self.joints, self.node.subscribe(k.base_state(), BasePose, self.on_base)]
         elif not on and self.states:
             for sub in self.states:
                 sub.undeclare()
@@ -238,17 +230,14 @@ class ExplorerNode:
         return self.joints.newest() if self.joints is not None else None
 
     def watch(self, on: bool) -> None:
-        """Subscribe to the camera's frames and the scene models (their first bytes read:
-        ``on_frame_head``, ``on_model_head``), or undeclare them."""
+        """Subscribe to the camera's frames and the scene models, reading only their first
+        bytes (``on_frame_head``, ``on_model_head`` refuse every sample: none is decoded), or
+        undeclare them."""
         if on and not self.watching:
-            k, session = self.node.keys, self.node.session
-
-            def heads(read):
-                return lambda sample: read(sample.payload.to_bytes())
-
+            k, n = self.node.keys, self.node
             self.watching = [
-                session.declare_subscriber(k.rgbd(self.s.camera), heads(self.on_frame_head)),
-                session.declare_subscriber(k.scene(), heads(self.on_model_head)),
+                n.subscribe(k.rgbd(self.s.camera), RgbdFrame, _never, accept=self.on_frame_head),
+                n.subscribe(k.scene(), SceneModel, _never, accept=self.on_model_head),
             ]
         elif not on and self.watching:
             for sub in self.watching:
@@ -300,9 +289,14 @@ class ExplorerNode:
                 self.core.unknown = stats.unknown if stats is not None else None
         request = PlanRequest(
             step=a.step, initial=a.initial, visited=a.visited, excluded=a.excluded,
+            blocked=a.blocked,
             centres=self.centres(), roi_min=roi[0] if roi else None,
             roi_max=roi[1] if roi else None,
         )  # fmt: skip
+        if len(a.blocked):
+            x, y, dx, dy = a.blocked[-1]
+            log.info("planning round where the platform got stuck: at (%.2f, %.2f) driving "
+                     "(%.2f, %.2f)", x, y, dx, dy)  # fmt: skip
         t0 = time.monotonic()
         try:
             replies = self.node.query(self.node.keys.plan(), request, NextBestView,
@@ -330,7 +324,8 @@ class ExplorerNode:
         with self.lock:
             self.act(self.core.planned(view, self.now()))
         log.info("view %d planned: %s", a.step, "terminate " + nbv.reason if nbv.terminate
-                 else f"IG {nbv.information_gain:.0f}, cost {nbv.cost:.1f} s")  # fmt: skip
+                 else f"IG {nbv.information_gain:.0f}, cost {nbv.cost:.1f} s, platform to "
+                      f"({nbv.x:.2f}, {nbv.y:.2f}, {nbv.yaw:.2f})")  # fmt: skip
 
     def look(self, target) -> None:
         self.out_gaze.put(
@@ -342,7 +337,9 @@ class ExplorerNode:
         """The platform to rest now: a zero velocity replaces the goal it drives."""
         self.out_base.put(BaseVelocity(seq=self.core.step, stamp=time.time(), v_x=0.0,
                                        timeout=0.1))  # fmt: skip
-        log.info("platform halted: %s", reason)
+        b = self.base
+        at = f" at ({b.x:.2f}, {b.y:.2f}, {b.yaw:.2f})" if b is not None else ""
+        log.info("platform halted%s: %s", at, reason)
 
     # -- lockstep ------------------------------------------------------------------------------
 
@@ -449,3 +446,7 @@ def await_commands(
                 f"step {step} after {timeout:g} s (applied: {applied})"
             )
         time.sleep(0.005)
+
+
+def _never(_message: object) -> None:
+    """The handler of an input whose ``accept`` refuses every sample."""

@@ -60,6 +60,9 @@ class GazeKinematics:
             self.cameras[c] = (m.getFrameId(body), T)
         self.imu = m.getFrameId(imu)
         self.q = pin.neutral(m)
+        self._neutral = pin.neutral(m)
+        #: per tuple of joint names (a joint state's): ``joint_indices``
+        self._indices: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def configuration(self, base: Sequence[float], joints: Mapping[str, float]) -> np.ndarray:
         """q from the platform pose (x, y, yaw) and named joint positions (others neutral)."""
@@ -77,6 +80,40 @@ class GazeKinematics:
         for n, w in joints.items():
             if n in self.idx_v:
                 v[self.idx_v[n]] = w
+        return v
+
+    def joint_indices(self, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For joint values in the order of ``names`` (a joint state's): which of them are the
+        model's joints (indices into ``names``), and their indices in q and in v (cached per
+        tuple of names: the 1 kHz control step's joint states all name the same joints)."""
+        found = self._indices.get(names)
+        if found is None:
+            mine = [i for i, n in enumerate(names) if n in self.idx_q]
+            found = self._indices[names] = (
+                np.array(mine, np.int64),
+                np.array([self.idx_q[names[i]] for i in mine], np.int64),
+                np.array([self.idx_v[names[i]] for i in mine], np.int64),
+            )
+        return found
+
+    def configuration_of(
+        self, base: Sequence[float], names: tuple[str, ...], values: np.ndarray
+    ) -> np.ndarray:
+        """``configuration`` from joint values as an array in the order of ``names``."""
+        mine, idx_q, _ = self.joint_indices(names)
+        q = self._neutral.copy()
+        q[self.base_q : self.base_q + 3] = base
+        q[idx_q] = values[mine]
+        return q
+
+    def velocity_of(
+        self, base_twist: Sequence[float], names: tuple[str, ...], values: np.ndarray
+    ) -> np.ndarray:
+        """``velocity`` from joint velocities as an array in the order of ``names``."""
+        mine, _, idx_v = self.joint_indices(names)
+        v = np.zeros(self.model.nv)
+        v[self.base_v : self.base_v + 3] = base_twist
+        v[idx_v] = values[mine]
         return v
 
     def update(self, q: np.ndarray) -> None:

@@ -108,6 +108,7 @@ class GazeNode:
         self.stab_lock = threading.Lock()
         self.out_lock = threading.RLock()  # cmd/head: a step's command and a hold's zero in order
         self.joint_state: JointState | None = None
+        self.joint_names: tuple[str, ...] = ()  # the joint state's names, as a tuple
         # (stamp, sample) in arrival order: joint states for OKR (1 s at 200 Hz), gyro for the VOR
         self.joint_history: deque[tuple[float, JointState]] = deque(maxlen=200)
         self.gyro_history: deque[tuple[float, np.ndarray]] = deque(maxlen=100)
@@ -151,13 +152,15 @@ class GazeNode:
                            latest_only=True, name="on_blobs")  # fmt: skip
         if settings.okr_gain > 0:
             node.subscribe(k.rgbd(self.okr_camera), RgbdFrame, self.on_frame, latest_only=True)
-        node._start_thread(self.watchdog, "gaze:watchdog")
+        node.start_thread(self.watchdog, "gaze:watchdog")
         if settings.egosphere_rate > 0:
-            node._start_thread(self.publish_egosphere, "gaze:egosphere")
+            node.start_thread(self.publish_egosphere, "gaze:egosphere")
 
     # -- inputs -------------------------------------------------------------------------------
 
     def on_joints(self, msg: JointState) -> None:
+        if self.joint_state is None or msg.names != self.joint_state.names:
+            self.joint_names = tuple(msg.names)  # the control step's key to its indices
         self.joint_state = msg
         self.joint_history.append((msg.stamp, msg))
 
@@ -294,15 +297,15 @@ class GazeNode:
         if target is None:
             self.hold("no fixation target")
             return
-        names = js.names
         pose, twist = self._base(base)
         with self.stab_lock:
-            cmd = self.stab.command(
+            cmd = self.stab.command_of(
                 target,
                 pose,
                 twist,
-                dict(zip(names, js.position.tolist(), strict=True)),
-                dict(zip(names, js.velocity.tolist(), strict=True)),
+                self.joint_names,
+                js.position,
+                js.velocity,
                 # the gyro of the joint state's instant, for the VOR's reafference
                 # (ω_gyro − J_ω·v of one instant): the newest gyro against a state up to 5 ms
                 # older (200 Hz) counts the head's own acceleration meanwhile as a disturbance,
@@ -323,7 +326,7 @@ class GazeNode:
                 return
             self.out_head.put_fields(  # (encoded unchecked at 1 kHz: the sim validates it)
                 HeadCommand, seq=self._seq(), stamp=imu.stamp, names=list(cmd.velocity),
-                mode="velocity", values=np.array(list(cmd.velocity.values())), source="gaze",
+                mode="velocity", values=cmd.array, source="gaze",
                 trigger_stamp=imu.stamp,
             )  # fmt: skip
             self.commanding = True

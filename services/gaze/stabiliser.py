@@ -60,6 +60,7 @@ class GazeCommand:
     velocity: dict[str, float]
     error_rad: dict[str, float]  # gaze angle error per camera
     unpredicted: np.ndarray  # ω_u, rad/s (world)
+    array: np.ndarray | None = None  # the velocities in the order of the config's joints
 
 
 class GazeStabiliser:
@@ -80,6 +81,7 @@ class GazeStabiliser:
         self.gains = np.array([config.gain, float(config.feedforward), config.vor_gain,
                                config.limit_time, config.centring, config.damping])  # fmt: skip
         self._no_bias = np.zeros(11)
+        self._head_of_names: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray]] = {}
 
     def warm_up(self) -> None:
         """Compile the control step's kernels now (seconds on a machine's first run, read from
@@ -122,6 +124,66 @@ class GazeStabiliser:
         frame) at the joints' instant, None without one; ``stamp``: the control step's time
         (for the OKR offset's leak)."""
         c, kin = self.c, self.kin
+        target, base, twist, horizon = self._begin(x_des, base, base_twist, stamp, latency)
+        if horizon > 0.0:  # the joints where they are now
+            position = predicted(position, velocity, horizon)
+        q = kin.configuration(base, position)
+        v = kin.velocity(twist, velocity)
+        q_head = np.array([position.get(n, 0.0) for n in c.joints])
+        return self._finish(target, q, v, q_head, gyro, stamp)
+
+    def command_of(
+        self,
+        x_des: np.ndarray,
+        base: Sequence[float],
+        base_twist: Sequence[float],
+        names: tuple[str, ...],
+        position: np.ndarray,
+        velocity: np.ndarray,
+        gyro: np.ndarray | None = None,
+        stamp: float | None = None,
+        latency: float = 0.0,
+    ) -> GazeCommand:
+        """``command`` with the measured joints as arrays in the order of ``names`` (a joint
+        state's, as it arrives), the same numbers without a mapping built per step: the
+        node's 1 kHz loop."""
+        c, kin = self.c, self.kin
+        target, base, twist, horizon = self._begin(x_des, base, base_twist, stamp, latency)
+        position = np.asarray(position, float)
+        velocity = np.asarray(velocity, float)
+        if horizon > 0.0:  # (``predicted``, element by element)
+            position = position + velocity * horizon
+        q = kin.configuration_of(base, names, position)
+        v = kin.velocity_of(twist, names, velocity)
+        found, where = self._head_of(names)
+        q_head = np.zeros(len(c.joints))
+        q_head[found] = position[where]
+        return self._finish(target, q, v, q_head, gyro, stamp)
+
+    def _head_of(self, names: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+        """The commanded joints that ``names`` holds (indices into the config's joints) and
+        where in ``names`` each is; cached per tuple of names."""
+        found = self._head_of_names.get(names)
+        if found is None:
+            where = {n: i for i, n in enumerate(names)}
+            mine = [k for k, n in enumerate(self.c.joints) if n in where]
+            found = self._head_of_names[names] = (
+                np.array(mine, np.int64),
+                np.array([where[self.c.joints[k]] for k in mine], np.int64),
+            )
+        return found
+
+    def _begin(
+        self,
+        x_des: np.ndarray,
+        base: Sequence[float],
+        base_twist: Sequence[float],
+        stamp: float | None,
+        latency: float,
+    ) -> tuple[np.ndarray, Sequence[float], Sequence[float], float]:
+        """The OKR offset's leak and the point held; the platform carried over the latency:
+        (target, base, twist, the prediction's horizon)."""
+        c = self.c
         if stamp is not None and self.stamp is not None:
             self.offset *= np.exp(-max(0.0, stamp - self.stamp) / c.okr_leak)
         self.stamp = stamp
@@ -129,18 +191,28 @@ class GazeStabiliser:
         target = self.last_target + self.offset
         twist = base_twist if c.odometry else (0.0, 0.0, 0.0)
         horizon = min(max(latency, 0.0), c.max_prediction)
-        if horizon > 0.0:  # the joints and the platform where they are now
-            position = predicted(position, velocity, horizon)
+        if horizon > 0.0:  # the platform where it is now
             base = (base[0] + twist[0] * horizon, base[1] + twist[1] * horizon,
                     base[2] + twist[2] * horizon)  # fmt: skip
-        kin.update(kin.configuration(base, position))
-        v = kin.velocity(twist, velocity)
+        return target, base, twist, horizon
+
+    def _finish(
+        self,
+        target: np.ndarray,
+        q: np.ndarray,
+        v: np.ndarray,
+        q_head: np.ndarray,
+        gyro: np.ndarray | None,
+        stamp: float | None,
+    ) -> GazeCommand:
+        """The control step at configuration ``q``, velocity ``v``."""
+        c, kin = self.c, self.kin
+        kin.update(q)
         frames, mounts, jacobians = kin.frames(c.cameras)
         M_imu, J_imu = kin.imu_frame()
         bias = self.bias
         qd, errors, omega_u = control_step(
-            frames, mounts, jacobians, M_imu, J_imu, v, self.head_index, target,
-            np.array([position.get(n, 0.0) for n in c.joints]),
+            frames, mounts, jacobians, M_imu, J_imu, v, self.head_index, target, q_head,
             # (a copy: a decoded message's arrays are read-only views, another type to numba,
             # which would compile the kernel again at the first live sample)
             np.zeros(3) if gyro is None else np.array(gyro, float), gyro is not None,
@@ -153,6 +225,7 @@ class GazeStabiliser:
             dict(zip(c.joints, qd.tolist(), strict=True)),
             dict(zip(c.cameras, errors.tolist(), strict=True)),
             omega_u,
+            qd,
         )
 
     def solve(self, J: np.ndarray, xd: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -264,7 +264,7 @@ class NbvNode:
         centres = self.centres(piece)
         result = self.planner.plan(
             centres, scene, piece.states, piece.origin, piece.voxel_size, current,
-            request.visited, step, request.excluded,
+            request.visited, step, request.excluded, request.blocked,
         )  # fmt: skip
         c = result.candidates
         self.out_candidates.put(

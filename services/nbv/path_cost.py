@@ -114,9 +114,12 @@ class FloorMap:
         keep_free: list[tuple[float, float, float]] = (),
         unseen_inside: tuple[np.ndarray, np.ndarray] | None = None,
         unseen_height: float = 1.3,
+        blocked: list[tuple[float, float, float]] = (),
     ) -> FloorMap:
         """Obstacles: occupied voxels between the heights ``z_range``; discs (x, y, radius) in
-        ``keep_free`` are cleared (the robot's own body, seen by its camera). Inside the xy box
+        ``blocked`` are obstacles whatever the map says (where the platform got stuck on
+        something no camera saw), and discs in ``keep_free`` are cleared (the robot's own
+        body, seen by its camera: it stands where it stands). Inside the xy box
         ``unseen_inside`` (the scene's roi) a column never seen up to ``unseen_height`` is an
         obstacle too: the robot does not drive through the part of the scene it has not looked
         at (furniture may stand there); outside it, unknown floor is taken as free."""
@@ -134,11 +137,12 @@ class FloorMap:
             box = np.zeros_like(obstacle)
             box[lo[0] : hi[0], lo[1] : hi[1]] = True
             obstacle |= unseen & box
-        if keep_free:
-            xs = origin[0] + (np.arange(obstacle.shape[0]) + 0.5) * voxel
-            ys = origin[1] + (np.arange(obstacle.shape[1]) + 0.5) * voxel
-            for x, y, r in keep_free:
-                obstacle &= (xs[:, None] - x) ** 2 + (ys[None, :] - y) ** 2 > r * r
+        xs = origin[0] + (np.arange(obstacle.shape[0]) + 0.5) * voxel
+        ys = origin[1] + (np.arange(obstacle.shape[1]) + 0.5) * voxel
+        for x, y, r in blocked:
+            obstacle |= (xs[:, None] - x) ** 2 + (ys[None, :] - y) ** 2 <= r * r
+        for x, y, r in keep_free:
+            obstacle &= (xs[:, None] - x) ** 2 + (ys[None, :] - y) ** 2 > r * r
         if obstacle.any():
             clearance = ndimage.distance_transform_edt(~obstacle) * voxel
         else:
@@ -183,6 +187,10 @@ def _exact_motions():
     return ExactMotions
 
 
+#: m: the clearance a path keeps beyond the footprint's radius
+MARGIN = 0.05
+
+
 class PathPlanner:
     """Platform paths on one FloorMap for a footprint of ``radius`` (+ ``margin``)."""
 
@@ -192,7 +200,7 @@ class PathPlanner:
         radius: float,
         vel_lin: float,
         vel_rot: float,
-        margin: float = 0.05,
+        margin: float = MARGIN,
         time_limit: float = 0.2,
     ) -> None:
         self.floor, self.vel_lin, self.vel_rot = floor, vel_lin, vel_rot

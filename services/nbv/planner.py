@@ -16,11 +16,11 @@ from typing import Any
 import numpy as np
 
 from schemas import SceneModel
-from schemas.planning import EXCLUDED_RADIUS
+from schemas.planning import BLOCKED_RADIUS, EXCLUDED_RADIUS
 from services.nbv import information_gain as ig
 from services.nbv import topdown, view_sphere
 from services.nbv.kinematics import HeadIK, HeadSolution
-from services.nbv.path_cost import FloorMap, PathPlanner
+from services.nbv.path_cost import MARGIN, FloorMap, PathPlanner
 from services.nbv.utility import utility
 
 
@@ -262,16 +262,27 @@ class Planner:
             self.config, self.rng.bit_generator.state = config, rng
             self.first_gain, self.coarse_gains = first_gain, fan_out
 
-    def path_planner(self, states, origin, voxel, current) -> PathPlanner:
+    def path_planner(
+        self, states, origin, voxel, current, blocked: np.ndarray | None = None
+    ) -> PathPlanner:
         """The platform's path planner on this map's floor, the robot's own footprint (and a
-        margin) cleared: the map cannot have seen the floor under it."""
+        margin) cleared: the map cannot have seen the floor under it. Where the platform got
+        stuck (``blocked``: x, y, dx, dy) an obstacle of ``BLOCKED_RADIUS`` stands just ahead
+        of its footprint, in the direction it drove (what stopped it touched the footprint
+        there), so that the paths that follow go round it."""
         c = self.config
+        ahead = c.footprint + MARGIN + BLOCKED_RADIUS + 0.03  # the stuck pose stays free
+        bumps = [
+            (x + ahead * dx, y + ahead * dy, BLOCKED_RADIUS)
+            for x, y, dx, dy in (blocked if blocked is not None else np.zeros((0, 4)))
+        ]
         floor = FloorMap.from_states(
             states,
             origin,
             voxel,
             keep_free=[(current[0], current[1], c.footprint + 0.1)],
             unseen_inside=c.roi,
+            blocked=bumps,
         )
         return PathPlanner(floor, c.footprint, c.vel_lin, c.vel_rot)
 
@@ -298,10 +309,12 @@ class Planner:
         visited: np.ndarray,
         step: int,
         excluded: np.ndarray | None = None,
+        blocked: np.ndarray | None = None,
     ) -> PlanResult:
         """One planning step (Algorithm 5); candidates whose platform pose lies within
         ``EXCLUDED_RADIUS`` of an ``excluded`` one (goals the platform did not reach) are
-        unreachable."""
+        unreachable; paths go round where the platform got stuck (``blocked``,
+        ``path_planner``)."""
         c = self.config
         times = {}
         t0 = time.perf_counter()
@@ -316,7 +329,9 @@ class Planner:
         planner: PathPlanner | None = None
         try:
             with ThreadPoolExecutor(1, thread_name_prefix="nbv-paths") as pool:
-                floor_job = pool.submit(_timed, self.path_planner, states, origin, voxel, current)
+                floor_job = pool.submit(
+                    _timed, self.path_planner, states, origin, voxel, current, blocked
+                )
                 reachable_by_ik = self.candidates(centres, scene, visited, occupancy)
                 cands = self.visible(reachable_by_ik, occupancy)
                 sampled = (len(reachable_by_ik.t), len(cands.t))

@@ -75,7 +75,7 @@ class PerceptionNode:
         node.subscribe(self.key, RgbdFrame, self.on_arrival, name="on_arrival", accept=self.mine)
         node.subscribe(self.cloud_key, CloudFrame, self.on_arrival, name="on_cloud",
                        accept=self.mine)  # fmt: skip
-        node._start_thread(self.work, "perception:work")
+        node.start_thread(self.work, "perception:work")
 
     def mine(self, payload: bytes) -> bool:
         """Whether this worker owns the frame, from its first bytes (another worker's frame is

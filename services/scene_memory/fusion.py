@@ -118,17 +118,28 @@ def _count_in_box(points, centre, R, half):
     return n
 
 
-def inlier(points: np.ndarray, obb: Obb, margin: float) -> float:
+def inlier(points: np.ndarray, obb: Obb, margin: float, boxes: _Boxes | None = None) -> float:
     """Inlier(a, b) = |P_a ∩ OBB(b)| / |P_a| (Eq. 3.8). (Compiled: the memory's primitives keep
-    up to 6000 points, and a kitchen observation asks this hundreds of times.)"""
+    up to 6000 points, and a kitchen observation asks this hundreds of times.) ``boxes``: the
+    step's converted boxes, where ``obb`` is taken from (else converted here). Float32 points
+    are counted as they are (each coordinate widened exactly, as a float64 copy would be)."""
     if not len(points):
         return 0.0
-    inside = _count_in_box(
-        np.ascontiguousarray(points, np.float64), np.array(obb.center, np.float64),
-        np.array(obb.rotation, np.float64, order="C"),
-        np.asarray(obb.extent, np.float64) / 2 + margin,
-    )  # fmt: skip
-    return inside / len(points)
+    if points.dtype not in (np.float32, np.float64) or not points.flags.c_contiguous:
+        points = np.ascontiguousarray(points, np.float64)
+    if boxes is not None:
+        _, R, c, h, _, _ = boxes._of(obb)
+    else:
+        c = np.array(obb.center, np.float64)
+        R = np.array(obb.rotation, np.float64, order="C")
+        h = np.asarray(obb.extent, np.float64) / 2
+    return _count_in_box(points, c, R, h + margin) / len(points)
+
+
+def _inside(points: np.ndarray, obb: Obb, margin: float) -> np.ndarray:
+    """Which of ``points`` lie in ``obb`` grown by ``margin`` (a mask; ``inlier`` counts)."""
+    local = (np.asarray(points, np.float64) - obb.center) @ np.asarray(obb.rotation, np.float64)
+    return np.all(np.abs(local) <= np.asarray(obb.extent) / 2 + margin, axis=1)
 
 
 def obbs_intersect(a: Obb, b: Obb, epsilon: float = 0.0) -> bool:
@@ -277,6 +288,16 @@ def voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
+def _slot(k, mask):
+    """A key's first slot in a hash table of ``mask + 1`` slots (splitmix64's finaliser: the
+    keys' axes sit in separate bit ranges)."""
+    z = np.uint64(k)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return np.int64(z ^ (z >> np.uint64(31))) & mask
+
+
+@njit(cache=True, nogil=True)
 def first_of_each(keys: np.ndarray) -> np.ndarray:
     """Indices of the first occurrence of each key, in increasing order (``np.unique``'s
     first indices, sorted) by a hash table instead of a sort: a memory primitive's merge
@@ -291,10 +312,7 @@ def first_of_each(keys: np.ndarray) -> np.ndarray:
     m = 0
     for i in range(n):
         k = keys[i]
-        z = np.uint64(k)  # splitmix64's finaliser: the keys' axes sit in separate bit ranges
-        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-        h = np.int64(z ^ (z >> np.uint64(31))) & mask
+        h = _slot(k, mask)
         while True:
             j = table[h]
             if j < 0:
@@ -308,17 +326,85 @@ def first_of_each(keys: np.ndarray) -> np.ndarray:
     return keep[:m]
 
 
-def downsample(points: np.ndarray, voxel: float, cap: int = MAX_POINTS) -> np.ndarray:
-    """One point per voxel (the first), at most ``cap`` (evenly spread)."""
-    out = points[first_of_each(voxel_keys(points, voxel))]
-    if len(out) > cap:
-        out = out[np.linspace(0, len(out) - 1, cap).astype(int)]
-    return out.astype(np.float32)
+@njit(cache=True, nogil=True)
+def _first_per_voxel(a, b, voxel, single):
+    """``first_of_each(voxel_keys(concatenate([a, b]), voxel))`` in one pass over both point
+    sets, without making the concatenation or its keys: the indices are into it. ``single``:
+    both are float32, and so is their concatenation, whose keys numpy divides in float32
+    (else in float64)."""
+    na, nb = a.shape[0], b.shape[0]
+    v32 = np.float32(voxel)
+    keys = np.empty(na + nb, np.int64)
+    offset = np.int64(1 << 20)
+    for i in range(na + nb):
+        if i < na:
+            x, y, z = np.float64(a[i, 0]), np.float64(a[i, 1]), np.float64(a[i, 2])
+        else:
+            x, y, z = np.float64(b[i - na, 0]), np.float64(b[i - na, 1]), np.float64(b[i - na, 2])
+        if single:
+            x = np.float64(np.float32(np.float32(x) / v32))
+            y = np.float64(np.float32(np.float32(y) / v32))
+            z = np.float64(np.float32(np.float32(z) / v32))
+        else:
+            x, y, z = x / voxel, y / voxel, z / voxel
+        kx = np.int64(np.floor(x)) + offset
+        ky = np.int64(np.floor(y)) + offset
+        kz = np.int64(np.floor(z)) + offset
+        keys[i] = (kx << 42) | (ky << 21) | kz
+    return first_of_each(keys)
+
+
+@njit(cache=True, nogil=True)
+def _gather32(a, b, index):
+    """``concatenate([a, b])[index].astype(float32)`` without the concatenation."""
+    na = a.shape[0]
+    out = np.empty((index.shape[0], 3), np.float32)
+    for r in range(index.shape[0]):
+        i = index[r]
+        for c in range(3):
+            out[r, c] = np.float32(a[i, c]) if i < na else np.float32(b[i - na, c])
+    return out
+
+
+_NO_POINTS = np.zeros((0, 3), np.float64)
+
+
+def downsample(
+    points: np.ndarray, voxel: float, cap: int = MAX_POINTS, more: np.ndarray | None = None
+) -> np.ndarray:
+    """One point per voxel (the first), at most ``cap`` (evenly spread), as float32; of
+    ``points`` followed by ``more`` (a memory primitive's points and a view's: the same as of
+    their concatenation, which is not made)."""
+    a = np.ascontiguousarray(points)
+    b = _NO_POINTS if more is None else np.ascontiguousarray(more)
+    if a.dtype not in (np.float32, np.float64) or b.dtype not in (np.float32, np.float64):
+        a, b = a.astype(np.float64), b.astype(np.float64)
+    single = a.dtype == np.float32 and (more is None or b.dtype == np.float32)
+    first = _first_per_voxel(a, b, float(voxel), single)
+    if len(first) > cap:
+        first = first[np.linspace(0, len(first) - 1, cap).astype(int)]
+    return _gather32(a, b, first)
+
+
+@njit(cache=True, nogil=True)
+def _column_range(a):
+    """``a.min(0), a.max(0)`` of an (n, 3) array (numpy's reduction down the columns of a
+    plane's 6000 points cost 0.3 ms a refit, ten times the product before it)."""
+    lo = a[0].copy()
+    hi = a[0].copy()
+    for i in range(1, a.shape[0]):
+        for c in range(3):
+            x = a[i, c]
+            if x < lo[c]:
+                lo[c] = x
+            elif x > hi[c]:
+                hi[c] = x
+    return lo, hi
 
 
 def _frame_obb(points: np.ndarray, R: np.ndarray) -> Obb:
     local = points @ R
-    lo, hi = local.min(0), local.max(0)
+    lo, hi = _column_range(local) if len(local) else (local.min(0), local.max(0))
     return Obb(center=R @ ((lo + hi) / 2), rotation=R, extent=hi - lo)
 
 
@@ -493,7 +579,7 @@ class Fusion:
     def _merge_into(self, mem: MemoryPrimitive, points: np.ndarray) -> bool:
         """Merge points into a memory primitive; True when that changed it (its box moved or
         grew by more than ``changed``): a re-observation that adds nothing is no change."""
-        merged = downsample(np.concatenate([mem.points, points]), self.config.voxel)
+        merged = downsample(mem.points, self.config.voxel, more=points)
         before = mem.primitive.obb
         mem.primitive = refit(mem.primitive, merged.astype(np.float64), mem.id)
         mem.points = merged
@@ -533,7 +619,7 @@ class Fusion:
             pts = phi.inliers.astype(np.float64)
             outcome, target = "add", None
             best = 0.0
-            if phi.model.kind in SOLIDS and self._spans_objects(phi, visible):
+            if phi.model.kind in SOLIDS and self._spans_objects(phi, visible, points=pts):
                 result.dropped += 1  # one solid around several the memory tells apart: a
                 continue  # segment that merged touching objects, not a better view of one
             phi_on_floor = floor is not None and _on_floor(phi, floor, c)
@@ -553,8 +639,8 @@ class Fusion:
                 kinds = {phi.model.kind, psi.primitive.model.kind}
                 if "plane" in kinds and len(kinds & SOLIDS) == 1:
                     # a face seen alone (a box's side, a cylinder's cap), and its solid
-                    in_new = inlier(pts, psi.primitive.obb, c.obb_margin)
-                    in_old = inlier(psi.points, phi.obb, c.obb_margin)
+                    in_new = inlier(pts, psi.primitive.obb, c.obb_margin, boxes)
+                    in_old = inlier(psi.points, phi.obb, c.obb_margin, boxes)
                     tol = c.surface_tolerance
                     if (
                         phi.model.kind == "plane"
@@ -576,8 +662,8 @@ class Fusion:
                 solids = kinds <= SOLIDS
                 if not solids and not compare_models(phi, psi.primitive, c):
                     continue
-                in_new = inlier(pts, psi.primitive.obb, c.obb_margin)
-                in_old = inlier(psi.points, phi.obb, c.obb_margin)
+                in_new = inlier(pts, psi.primitive.obb, c.obb_margin, boxes)
+                in_old = inlier(psi.points, phi.obb, c.obb_margin, boxes)
                 # a cylinder or sphere of the same parameters overlapping it is it (a box's
                 # extent is no such parameter: a part seen is smaller than the whole)
                 same_model = (
@@ -611,6 +697,8 @@ class Fusion:
                 if outcome == "add" or score > best:
                     outcome, target, best = decision, psi, score
             if outcome in ("same", "covered"):
+                if target.primitive.model.kind in SOLIDS:
+                    pts = self._not_annexed(target, pts, visible)
                 if self._merge_into(target, pts) and outcome == "same":
                     result.modified += 1
                 near_of.moved(target)
@@ -620,7 +708,7 @@ class Fusion:
             mem = MemoryPrimitive(mid, phi.model_copy(update={"id": mid}), downsample(pts, c.voxel))
             if outcome == "replace":
                 old = self.prims.pop(target.id)
-                mem.points = downsample(np.concatenate([mem.points, old.points]), c.voxel)
+                mem.points = downsample(mem.points, c.voxel, more=old.points)
                 mem.primitive = refit(mem.primitive, mem.points.astype(np.float64), mid)
                 mem.views = old.views + 1
                 self._rename_edges(old.id, mid)
@@ -638,12 +726,41 @@ class Fusion:
         self.last = result
         return result
 
+    def _not_annexed(
+        self, solid: MemoryPrimitive, points: np.ndarray, visible: list[MemoryPrimitive]
+    ) -> np.ndarray:
+        """``points`` to merge into ``solid`` without those that lie outside it and inside
+        another solid the memory holds: a box's side face seen as one plane with the side of
+        the plank on it (generated scene 1012) would grow the box into the plank, and the
+        support test would then rule out the plank's edge."""
+        c = self.config
+        outside = ~_inside(points, solid.primitive.obb, c.obb_margin)
+        if not outside.any():
+            return points
+        theirs = np.zeros(len(points), bool)
+        for m in visible:
+            if (
+                m.id != solid.id
+                and m.id in self.prims
+                and m.primitive.model.kind in SOLIDS
+                and self._boxes.intersect(m.primitive.obb, solid.primitive.obb, c.plane_gap)
+            ):
+                theirs |= outside & _inside(points, m.primitive.obb, c.obb_margin)
+        return points[~theirs] if theirs.any() else points
+
     def _spans_objects(
-        self, p: Primitive, candidates: list[MemoryPrimitive], limit: int = 2
+        self,
+        p: Primitive,
+        candidates: list[MemoryPrimitive],
+        limit: int = 2,
+        points: np.ndarray | None = None,
     ) -> bool:
         """Does ``p`` hold what the memory knows as separate things: ``limit`` or more
         solids, or planes off its surface (a box's own faces lie on it), or two primitives
-        of which one supports the other? Inside: Inlier ≥ ``contained``."""
+        of which one supports the other? Inside: Inlier ≥ ``contained``. With ``p``'s
+        ``points``, a solid holding more than λ_p of them is also one of its things for the
+        support test: a segment across a contact (a box's top and the plank on it) covers
+        neither whole, and would otherwise replace the one it covers most."""
         c = self.config
         inside, things = set(), 0
         for m in candidates:
@@ -651,10 +768,16 @@ class Fusion:
                 m.primitive.obb, p.obb, c.obb_margin
             ):
                 continue
-            if inlier(m.points, p.obb, c.obb_margin) < c.contained:
+            kind = m.primitive.model.kind
+            if inlier(m.points, p.obb, c.obb_margin, self._boxes) < c.contained:
+                if (
+                    points is not None
+                    and kind in SOLIDS
+                    and inlier(points, m.primitive.obb, c.obb_margin, self._boxes) > c.lambda_p
+                ):
+                    inside.add(m.id)
                 continue
             inside.add(m.id)
-            kind = m.primitive.model.kind
             face = kind == "plane" and on_surface(p, m.points, c.face_distance)
             things += kind in SOLIDS or not face
         return things >= limit or any(a in inside and b in inside for a, b in self.occ)
@@ -683,7 +806,7 @@ class Fusion:
                     continue
                 if not self._boxes.intersect(solid.primitive.obb, m.primitive.obb, c.obb_margin):
                     continue
-                share = inlier(m.points, solid.primitive.obb, c.obb_margin)
+                share = inlier(m.points, solid.primitive.obb, c.obb_margin, self._boxes)
                 kind = m.primitive.model.kind
                 if (
                     (kind == "plane" and share > c.lambda_o)
@@ -883,6 +1006,11 @@ def warm_up() -> None:
     and the points-in-box count, on arrays of the types the live path passes."""
     sat.warm_up()
     first_of_each(np.zeros(3, np.int64))
+    _column_range(np.zeros((2, 3)))
+    for a in (np.zeros((2, 3), np.float32), np.zeros((2, 3))):  # the types merges pass
+        for b in (np.zeros((2, 3), np.float32), np.zeros((2, 3))):
+            downsample(a, 0.01, more=b)
     box = Obb(center=np.zeros(3), rotation=np.eye(3), extent=np.ones(3))
     inlier(np.zeros((4, 3), np.float32), box, 0.01)
     inlier(np.zeros((4, 3)), box, 0.01)
+    inlier(np.zeros((4, 3), np.float32), box, 0.01, _Boxes())

@@ -133,9 +133,9 @@ class SimNode:
         node.serve(k.sim_control(), self.on_control, SimControl)
         node.serve(k.ground_truth(), self.on_ground_truth, GroundTruthQuery)
         self.worker = RenderWorker(self)
-        node._start_thread(self.worker.run, "sim:render")
+        node.start_thread(self.worker.run, "sim:render")
         if not settings.lockstep:
-            node._start_thread(self.physics_loop, "sim:physics")
+            node.start_thread(self.physics_loop, "sim:physics")
         log.info(
             "simulating",
             extra={

@@ -35,7 +35,7 @@ class ReplayNode:
         for key in recording.counts:  # declared up front: a declaration costs time mid-replay
             self._output(key)
         node.serve(node.keys.sim_control(), self.on_control, SimControl)
-        node._start_thread(self.play, "sim:replay")
+        node.start_thread(self.play, "sim:replay")
         log.info(
             "replaying",
             extra={
@@ -61,7 +61,7 @@ class ReplayNode:
         log.info("replay finished", extra={"records": self.played})
         # linger before closing the session, as a socket does: the last large frames may still
         # be on their way through the router
-        self.node._stop.wait(self.settings.replay_linger)
+        self.node.wait(self.settings.replay_linger)
         self.node.stop()
 
     def _play(self) -> None:
@@ -76,7 +76,7 @@ class ReplayNode:
             if self.node.stopping:
                 return
             delay = start + record.t / self.settings.speed - time.monotonic()
-            if delay > 0 and self.node._stop.wait(delay):
+            if delay > 0 and self.node.wait(delay):
                 return
             self._output(record.key).put_raw(record.payload)
             self.played += 1

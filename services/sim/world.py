@@ -448,6 +448,13 @@ class World:
         return _optical_pose(d, self.cameras[camera])
 
 
+def look_target(world: World) -> np.ndarray:
+    """Where a first view looks: the roi's centre, or the centre of the scene's objects."""
+    if world.info.roi is not None:
+        return (world.info.roi[0] + world.info.roi[1]) / 2
+    return np.mean([world.data.xpos[world.model.body(n).id] for n in world.info.objects], axis=0)
+
+
 def _optical_pose(data: mujoco.MjData, camera_id: int) -> np.ndarray:
     """The optical frame (x right, y down, z forward) of camera ``camera_id`` in ``data``'s
     world (MuJoCo's camera looks along −z with y up)."""

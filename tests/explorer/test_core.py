@@ -85,14 +85,26 @@ def test_a_goal_not_reached_in_time_is_abandoned_and_excluded_from_the_next_plan
     x.tick(r.sensed())
     x.planned(view(0, cost=4.0), r.t)
     r.goal, r.status = "view-0", "moving"
-    r.t += 17.9  # 2 × 4 s + 10 s: not yet
-    assert x.tick(r.sensed()) == []
+    for k in range(10):  # drives along +y toward what stops it, sliding a little at the end
+        r.t += 0.1
+        assert x.tick(r.sensed(base=(0.2 + 0.01 * (k == 9), 0.05 * k, 0.0))) == []
+    r.t += 16.9  # 2 × 4 s + 10 s: not yet (it stands pushing against it)
+    assert x.tick(r.sensed(base=(0.21, 0.45, 0.0))) == []
     r.t += 0.2
-    (halt,) = x.tick(r.sensed())
+    (halt,) = x.tick(r.sensed(base=(0.21, 0.45, 0.0)))
     assert isinstance(halt, Halt) and x.phase == "plan" and x.abandoned == 1
     (plan,) = x.tick(r.sensed())
     assert plan.step == 1 and plan.excluded.tolist() == [[0.0, 0.0, 0.0]]
+    # where it got stuck and the way it came over its last 0.3 m: the next paths go round
+    ((bx, by, dx, dy),) = plan.blocked.tolist()
+    assert (bx, by) == (0.21, 0.45) and dx == pytest.approx(0.01 / 0.3, abs=0.01) and dy > 0.99
     assert x.view == 0  # an abandoned goal is no view
+    # a platform that never moved is blocked toward its goal
+    x.planned(view(2, cost=1.0), r.t)
+    r.t += 12.5
+    x.tick(r.sensed(base=(0.0, 0.0, 0.0)))
+    (plan,) = x.tick(r.sensed())
+    assert plan.blocked.tolist()[1] == [0.0, 0.0, 1.0, 0.0]
 
 
 def test_goals_abandoned_in_a_row_end_the_episode():

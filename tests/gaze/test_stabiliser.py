@@ -313,3 +313,42 @@ def test_okr_follows_a_platform_turn_only_the_images_tell(world):
         final[okr] = (float(np.sqrt(np.mean(np.square(errors[1000:])))), errors[-1])
     assert final[False][1] > 30, final  # the robot turned ~50° and the gaze with it
     assert final[True][0] < 5 and final[True][1] < 7, final  # still in the 16°×8° fovea
+
+
+@pytest.mark.parametrize("robot", ["armar3", "armar6"])
+def test_command_of_arrays_is_command_of_mappings_to_the_bit(robot):
+    """The node's 1 kHz step passes the joint state's arrays (``command_of``): over a sequence
+    of steps (latency carried forward or not, with and without a gyro, a joint the model does
+    not have, a commanded joint the state lacks) its velocities, errors, ω_u, the OKR offset
+    and the gyro bias's state are those of ``command`` on the same joints as mappings."""
+    from services.gaze.config import GazeSettings
+    from services.gaze.node import build_stabiliser
+
+    settings = GazeSettings(robot=robot)
+    a, b = build_stabiliser(settings), build_stabiliser(settings)
+    rng = np.random.default_rng(7)
+    names = [*a.kin.joint_names, "not_a_joint"]
+    for k in range(200):
+        keep = names if k % 7 else [n for n in names if n != a.c.joints[0]]
+        q = rng.uniform(-0.3, 0.3, len(keep))
+        qd = rng.uniform(-0.5, 0.5, len(keep))
+        base = tuple(rng.uniform(-1, 1, 3))
+        twist = tuple(rng.uniform(-0.3, 0.3, 3))
+        gyro = None if k % 5 == 0 else rng.normal(0, 0.05, 3)
+        latency = [0.0, 0.003, 0.2][k % 3]
+        target = np.array([1.5, 0.1, 1.0]) + rng.normal(0, 0.1, 3)
+        stamp = 0.001 * k
+        if k % 50 == 25:  # the OKR moved the held point
+            a.observe_slip(a.c.cameras[0], np.array([0.01, -0.02]), 0.05)
+            b.observe_slip(b.c.cameras[0], np.array([0.01, -0.02]), 0.05)
+        ca = a.command(target, base, twist, dict(zip(keep, q.tolist(), strict=True)),
+                       dict(zip(keep, qd.tolist(), strict=True)), gyro, stamp, latency)  # fmt: skip
+        cb = b.command_of(target, base, twist, tuple(keep), q, qd, gyro, stamp, latency)
+        assert list(cb.velocity) == list(ca.velocity)
+        np.testing.assert_array_equal(list(cb.velocity.values()), list(ca.velocity.values()))
+        np.testing.assert_array_equal(cb.array, list(ca.velocity.values()))
+        assert cb.error_rad == ca.error_rad
+        np.testing.assert_array_equal(cb.unpredicted, ca.unpredicted)
+        np.testing.assert_array_equal(b.offset, a.offset)
+        np.testing.assert_array_equal(b.bias.state, a.bias.state)
+    assert np.abs(cb.array).max() > 0.01  # the steps commanded something

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from avs.explore import Episode, EpisodeConfig
+from experiments.episode import Episode, EpisodeConfig
 
 
 def _views(workers: int, out: Path) -> list[dict]:

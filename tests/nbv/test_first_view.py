@@ -113,3 +113,29 @@ def test_an_excluded_goal_is_not_planned_again(planner):
     assert near.any() and np.isinf(again.cost[near]).all()
     assert again.best is not None and not near[again.best]
     assert np.linalg.norm(base[again.best, :2] - goal[:2]) >= EXCLUDED_RADIUS
+
+
+def test_paths_go_round_where_the_platform_got_stuck(planner):
+    """A glass pane the map does not hold: the platform drove +x from (0, 0) and stood
+    against it. The next paths from there keep clear of an obstacle just ahead of its
+    footprint in that direction, and the stuck pose itself stays free to start from."""
+    from itertools import pairwise
+
+    from schemas.planning import BLOCKED_RADIUS
+
+    voxel, origin = 0.04, np.array([-1.5, -2.5, 0.0])
+    states = np.full((125, 125, 50), 1, np.uint8)  # all free
+    stuck = np.array([[0.0, 0.0, 1.0, 0.0]])
+    start, goal = np.array([0.0, 0.0, 0.0]), np.array([2.0, 0.0, 0.0])
+    free = planner.path_planner(states, origin, voxel, start)
+    cost, path = free.cost(start, goal)
+    assert len(path) == 2  # the straight line, without it
+    paths = planner.path_planner(states, origin, voxel, start, stuck)
+    assert paths.valid(start[None, :2])[0]
+    for _ in range(10):  # RRT is random
+        cost, path = paths.cost(start, goal)
+        assert math.isfinite(cost) and len(path) > 2
+        for a, b in pairwise(path):
+            pts = a[:2] + np.linspace(0, 1, 500)[:, None] * (b[:2] - a[:2])
+            bump = np.array([paths.need + BLOCKED_RADIUS + 0.03, 0.0])
+            assert np.linalg.norm(pts - bump, axis=1).min() >= paths.need + BLOCKED_RADIUS - voxel

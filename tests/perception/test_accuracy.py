@@ -9,13 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from avs import evaluation
-from avs.commands.perceive import look_target
+from experiments import evaluation
 from services.perception.pipeline import Perception, observation
 from services.sim import capture
 from services.sim.render import CameraRenderer
 from services.sim.robots import ARMAR6
-from services.sim.world import World
+from services.sim.world import World, look_target
 
 _views: dict = {}
 

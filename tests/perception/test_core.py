@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from avs import evaluation
+from experiments import evaluation
 from schemas import (
     BoxModel,
     CameraIntrinsics,

@@ -10,8 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from avs import evaluation
-from avs.commands.perceive import look_target
+from experiments import evaluation
 from schemas import CloudFrame, SceneObservation, decode, encode
 from services.perception.pipeline import Perception, cloud_observation, observation
 from services.perception.pointset import point_set, segment_points
@@ -21,7 +20,7 @@ from services.scene_memory.occupancy import OccupancyConfig
 from services.sim import capture, ground_truth
 from services.sim.render import CameraRenderer
 from services.sim.robots import ARMAR6
-from services.sim.world import World
+from services.sim.world import World, look_target
 
 HIDDEN = ("box_base", "cylinder_top")  # the stack's contact, behind box_front from the start
 

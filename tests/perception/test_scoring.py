@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from avs import evaluation
+from experiments import evaluation
 from schemas import BoxModel, CylinderModel, Obb, PlaneModel, Primitive, SphereModel
 
 

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from avs.explore import Episode, EpisodeConfig
+from experiments.episode import Episode, EpisodeConfig
 
 
 @pytest.mark.timeout(600)

@@ -6,12 +6,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from schemas import Obb, encode
+from schemas import Obb, PlaneModel, Primitive, encode
 from services.scene_memory import state
 from services.scene_memory.fusion import (
     Fusion,
     FusionConfig,
     _Boxes,
+    _frame_obb,
+    downsample,
     first_of_each,
     inlier,
     obbs_intersect,
@@ -250,3 +252,130 @@ def test_first_of_each_is_numpy_unique_s_first_indices():
     for keys in cases:
         _, first = np.unique(keys, return_index=True)
         assert np.array_equal(first_of_each(keys), np.sort(first))
+
+
+def test_a_segment_across_a_support_contact_does_not_replace_the_supporter():
+    """Generated scene 1012: a plank on a block, both fused with the block → plank edge; a
+    later view segments the block's upper part and the plank as one flat box. It covers the
+    block's points (Inlier 1.0) but neither whole: it would replace the block and take the
+    plank's place in the graph. It is a segment across a contact, dropped like one around
+    several objects (``Fusion._spans_objects``)."""
+    fusion = Fusion()
+    table = plane(0, (0.4, 1.4), (-0.4, 0.4), 0.75)
+    block = box(1, (0.9, 0.0, 0.822), (0.10, 0.066, 0.144))
+    plank = box(2, (0.9, 0.04, 0.917), (0.23, 0.11, 0.046))
+    for i in range(2):
+        fusion.update(observation(i, [table, block, plank], [(0, 1), (1, 2)],
+                                  T=camera_above(0.9 + 0.02 * i)))  # fmt: skip
+    before = {m.id: m.primitive.obb.extent.copy() for m in fusion.prims.values()}
+    top = block.inliers[block.inliers[:, 2] > 0.86]
+    pts = np.concatenate([top, plank.inliers])
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    across = box(5, tuple((lo + hi) / 2), tuple(hi - lo))
+    across = across.model_copy(update={"inliers": pts, "inlier_count": len(pts)})
+    update = fusion.update(observation(2, [table, across], [(0, 5)], T=camera_above(0.94)))
+    assert update.dropped == 1 and update.added == 0
+    assert set(fusion.prims) == set(before)
+    for pid, extent in before.items():
+        np.testing.assert_allclose(fusion.prims[pid].primitive.obb.extent, extent, atol=0.005)
+    edges = {(e.supporter, e.supported) for e in fusion.scene_model().support_edges}
+    assert (1, 2) in edges
+
+
+def test_a_face_seen_with_its_neighbour_s_does_not_grow_the_solid_into_it():
+    """Generated scene 1012 again: a block's side and the side of the plank on it lie in one
+    plane and are segmented as one. Most of it lies on the block (the block covers it), but
+    the plank's part of it must not be merged into the block: the block would grow into the
+    plank and the support test would rule out their edge."""
+    fusion = Fusion()
+    table = plane(0, (0.4, 1.4), (-0.4, 0.4), 0.75)
+    block = box(1, (0.9, 0.0, 0.822), (0.10, 0.066, 0.144))
+    plank = box(2, (0.9, 0.0, 0.909), (0.10, 0.066, 0.03))
+    for i in range(2):
+        fusion.update(observation(i, [table, block, plank], [(0, 1), (1, 2)],
+                                  T=camera_above(0.9 + 0.02 * i)))  # fmt: skip
+    height = fusion.prims[1].primitive.obb.extent[2]
+    rng = np.random.default_rng(3)
+    z = rng.uniform(0.75, 0.924, 1200)
+    y = rng.uniform(-0.033, 0.033, 1200)
+    pts = np.column_stack([np.full(1200, 0.95), y, z])
+    face = Primitive(
+        id=5,
+        model=PlaneModel(normal=np.array([1.0, 0, 0]), d=-0.95),
+        obb=Obb(center=np.array([0.95, 0.0, 0.837]), rotation=np.eye(3),
+                extent=np.array([0.004, 0.066, 0.174])),
+        inlier_count=len(pts),
+        inliers=pts.astype(np.float32),
+    )  # fmt: skip
+    update = fusion.update(observation(2, [table, face], [(0, 5)], T=camera_above(0.94)))
+    assert update.mapping[5] == 1  # the block covers it
+    assert fusion.prims[1].primitive.obb.extent[2] < height + 0.005
+    edges = {(e.supporter, e.supported) for e in fusion.scene_model().support_edges}
+    assert (1, 2) in edges
+
+
+def _downsample_by_numpy(points: np.ndarray, voxel: float, cap: int = 6000) -> np.ndarray:
+    """What ``downsample`` was (the reference): the first point of each voxel of the whole
+    set, evenly spread down to ``cap``, as float32."""
+    _, first = np.unique(voxel_keys(points, voxel), return_index=True)
+    out = points[np.sort(first)]
+    if len(out) > cap:
+        out = out[np.linspace(0, len(out) - 1, cap).astype(int)]
+    return out.astype(np.float32)
+
+
+def test_a_merge_s_downsample_is_that_of_the_concatenation_to_the_bit():
+    """``downsample(a, more=b)`` (a merge: the memory's float32 points and a view's float64
+    ones, never concatenated) keeps exactly the points the concatenation's downsample kept,
+    for every mix of types: float32 with float32 is divided into voxels in float32 as numpy
+    does (points on voxel faces fall on the other side than in float64: the case is here),
+    below and above the cap."""
+    rng = np.random.default_rng(11)
+    # a level plane's noisy points, and points on voxel faces (multiples of 1 cm)
+    plane_pts = np.column_stack([rng.uniform(0, 1.2, 9000), rng.uniform(0, 0.9, 9000),
+                                 rng.normal(0.9, 0.002, 9000)])  # fmt: skip
+    faces = rng.integers(-300, 300, (3000, 3)) * 0.01
+    f32 = np.concatenate([plane_pts[:5000], faces[:1500]]).astype(np.float32)
+    more32 = np.concatenate([plane_pts[5000:], faces[1500:]]).astype(np.float32)
+    more64 = np.concatenate([plane_pts[5000:], faces[1500:]])
+    # float32 coordinates on a voxel face that float32 and float64 divisions put in
+    # different voxels, each after a point in its float64 voxel: kept only in float32
+    face = faces.ravel().astype(np.float32)
+    split = face[np.floor(face / np.float32(0.01)) != np.floor(face.astype(np.float64) / 0.01)]
+    assert len(split) > 10
+    lower = (np.floor(split.astype(np.float64) / 0.01) + 0.5) * 0.01  # inside the float64 voxel
+    edge = np.zeros((2 * len(split), 3))
+    edge[:, 0] = np.repeat(lower, 2)
+    edge[1::2, 0] = split
+    f32 = np.concatenate([edge.astype(np.float32), f32])
+    for a, b in [(f32, more64), (f32, more32), (f32.astype(np.float64), more64),
+                 (f32.astype(np.float64), more32)]:  # fmt: skip
+        for cap in (100_000, 6000, 500):
+            want = _downsample_by_numpy(np.concatenate([a, b]), 0.01, cap)
+            got = downsample(a, 0.01, cap, more=b)
+            assert got.dtype == np.float32 and np.array_equal(got, want)
+        for only in (a, b):
+            assert np.array_equal(downsample(only, 0.01), _downsample_by_numpy(only, 0.01))
+    assert len(downsample(np.zeros((0, 3), np.float32), 0.01, more=np.zeros((0, 3)))) == 0
+
+
+def test_a_plane_s_box_and_the_inlier_count_are_numpy_s_to_the_bit():
+    """The plane refit's box (its points' range along its axes) and Eq. 3.8's count from the
+    step's converted boxes, of float32 points as they are, are those of numpy's reductions
+    and of float64 copies."""
+    rng = np.random.default_rng(3)
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    R *= np.sign(np.linalg.det(R))
+    pts = rng.normal(size=(6000, 3)) * [0.6, 0.4, 0.003] @ R.T + [1.0, 0.2, 0.9]
+    obb = _frame_obb(pts, R)
+    local = pts @ R
+    lo, hi = local.min(0), local.max(0)
+    assert np.array_equal(obb.extent, hi - lo)
+    assert np.array_equal(obb.center, R @ ((lo + hi) / 2))
+    small = Obb(center=obb.center, rotation=R, extent=obb.extent * [0.2, 0.3, 1.0])
+    boxes = _Boxes()
+    for points in (pts, pts.astype(np.float32)):
+        share = inlier(points.astype(np.float64), small, 0.01)
+        assert 0.2 < share < 0.8
+        assert inlier(points, small, 0.01, boxes) == share
+        assert inlier(points, small, 0.01) == share

@@ -7,7 +7,6 @@ import math
 
 import numpy as np
 
-from avs.commands.perceive import look_target
 from schemas import RgbdFrame, SceneModel, SceneObservation, decode, encode
 from services.perception.pipeline import Perception, observation
 from services.scene_memory.fusion import FusionConfig
@@ -16,7 +15,7 @@ from services.scene_memory.occupancy import OccupancyConfig
 from services.sim import capture
 from services.sim.render import CameraRenderer
 from services.sim.robots import ARMAR6
-from services.sim.world import World
+from services.sim.world import World, look_target
 
 BOUNDS_MIN, BOUNDS_MAX = [-0.5, -1.5, -0.05], [2.5, 1.5, 1.6]
 VOXEL = 0.02

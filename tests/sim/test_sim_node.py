@@ -14,7 +14,6 @@ import pytest
 import zenoh
 from mcap.reader import make_reader
 
-from avs.explore import Episode, EpisodeConfig
 from schemas import (
     BaseGoal,
     BasePose,
@@ -34,6 +33,7 @@ from schemas import (
 from schemas.export import json_schema_text
 from services.common.poses import pose_difference
 from services.common.robots import robot_mjcf
+from services.explorer.node import await_commands
 from services.gaze.kinematics import GazeKinematics
 from tests.conftest import avs_env, liveliness_tokens, matched_publisher, wait_for
 
@@ -145,9 +145,9 @@ def test_commands_and_streams_over_zenoh(client, router, procs):
     head = matched_publisher(client, KEYS.cmd_head(), timeout=30)
     assert control(client, op="status").applied == {}
     # a driver that waits for the planner's commands of a step names what did not come
-    episode = Episode(EpisodeConfig(scene="tabletop_clutter"))
+    status = lambda: control(client, op="status")  # noqa: E731
     with pytest.raises(TimeoutError, match=r"base/head commands of step 7 after 0.2 s"):
-        episode._await_commands(client, 7, ("base", "head"), timeout=0.2)
+        await_commands(status, 7, ("base", "head"), timeout=0.2)
     goal.put(encode(BaseGoal(seq=7, goal_id="g", x=-0.3, y=0.2, yaw=0.5)))
     head.put(
         encode(
@@ -157,7 +157,7 @@ def test_commands_and_streams_over_zenoh(client, router, procs):
         )
     )
     head.put(b"not a command")
-    episode._await_commands(client, 7, ("base", "head"))  # ... and goes on once applied
+    await_commands(status, 7, ("base", "head"))  # ... and goes on once applied
     wait_for(lambda: _metric_drops(client, "cmd") >= 2, 30, "the sim to take the commands")
     assert control(client, op="status").applied == {"base": 7, "head": 7}
     status = control(client, op="step", n=4000)

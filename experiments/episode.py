@@ -1,8 +1,10 @@
-"""The exploration episode (thesis Algorithm 5 in a loop, 4.5): every service a local process
-on a loopback router, the sim in lockstep, and this orchestrator stepping it:
+"""The exploration episode (thesis Algorithm 5 in a loop, 4.5) in lockstep: every service a
+local process on a loopback router, the explorer among them (``services/explorer``, its clock
+``lockstep``: it steps the sim while the platform and head move, asks it to render each view,
+and holds after each view), and this evaluator outside it: it only subscribes and queries.
 
-    plan (nbv/plan: BaseGoal + HeadCommand) → step the sim until the platform and head arrive
-    → render → perception → scene memory (fuse, integrate) → score against the ground truth
+    explorer: plan (nbv/plan) → step until platform and head are still → render → the frame
+    fused and mapped → held   ·   here: score the view against the ground truth → resume
 
 until the planner stops (u(v̂) below quality, or n views). The first view is taken where the
 robot starts, looking at the roi's centre (turning in place first where the neck cannot).
@@ -29,21 +31,20 @@ from pathlib import Path
 import numpy as np
 import zenoh
 
-from avs import evaluation
 from avs.launcher import Supervisor
 from avs.services import BY_NAME
+from experiments import evaluation
 from schemas import (
     BasePose,
-    BaseVelocity,
     BoxQuery,
+    ExploreControl,
+    ExploreStatus,
     GroundTruth,
     GroundTruthQuery,
-    JointState,
     Keys,
     NextBestView,
     OccupancySlice,
     OccupancyStats,
-    PlanRequest,
     PoseCorrection,
     RgbdFrame,
     SceneModel,
@@ -53,11 +54,10 @@ from schemas import (
     encode,
 )
 from services.common.poses import pose_difference
-from services.explorer.node import await_commands
 
-EPISODE_SERVICES = ("sim", "perception", "scene_memory", "nbv")
-#: how long the driver waits for the sim to apply the planner's commands of a step
-COMMAND_WAIT_S = 30.0
+EPISODE_SERVICES = ("sim", "perception", "scene_memory", "nbv", "explorer")
+#: how long the evaluator waits for the explorer's next view (a plan, a drive, fusion)
+VIEW_WAIT_S = 900.0
 #: a view that realises less than this share of its predicted gain is a warning sign
 REALISED_SHARE = 0.1
 log = logging.getLogger("avs.explore")
@@ -103,7 +103,9 @@ class ViewRecord:
     planning_s: float
     base: list[float]
     information_gain: float = 0.0
-    reached: bool = True  # False: the platform got stuck on the way; the view is from there
+    #: goals the platform did not reach in time on the way to this view: abandoned, and
+    #: excluded from the plans that followed (``services/explorer``)
+    abandoned: int = 0
     goal: list[float] = field(default_factory=list)  # the planned platform pose (Eq. 4.2, 4.3)
     trajectory: list[list[float]] = field(default_factory=list)  # (x, y) driven, every 0.1 s
     planning_workers: int = 1  # nbv instances that evaluated the candidates
@@ -132,6 +134,7 @@ class EpisodeResult:
     views: list[ViewRecord] = field(default_factory=list)
     terminated_by: str = ""
     termination_detail: str = ""  # why, in words (no_candidates)
+    abandoned_goals: int = 0  # goals the platform did not reach in time, all episode long
     final_support_edges: list[list[str]] = field(default_factory=list)
     #: the fused model's primitives: id, kind, the body each maps to, OBB centre and extent
     final_primitives: list[dict] = field(default_factory=list)
@@ -175,9 +178,8 @@ class SceneFacts:
 
 def scene_facts(scene: str, robot: str, radius: float = 1.5) -> SceneFacts:
     from avs.bounds import map_bounds
-    from avs.commands.perceive import look_target
     from services.sim.robots import ROBOTS
-    from services.sim.world import World
+    from services.sim.world import World, look_target
 
     world = World(scene, ROBOTS[robot])
     centre = look_target(world)
@@ -221,6 +223,29 @@ class Latest:
                     raise TimeoutError(f"timed out waiting for {what}")
                 self.cond.wait(left)
             return self.value
+
+
+class Trail:
+    """The platform's (x, y) every 0.1 s of its clock, as it drives (the report's map)."""
+
+    def __init__(self, session: zenoh.Session, key: str) -> None:
+        self.points: list[list[float]] = []
+        self.last = -float("inf")
+        self.lock = threading.Lock()
+        self.sub = session.declare_subscriber(key, self._on)
+
+    def _on(self, sample: zenoh.Sample) -> None:
+        b = decode(sample.payload.to_bytes(), BasePose)
+        with self.lock:
+            if b.stamp - self.last >= 0.1 - 1e-9:
+                self.points.append([round(b.x, 3), round(b.y, 3)])
+                self.last = b.stamp
+
+    def take(self) -> list[list[float]]:
+        """The points since the last call."""
+        with self.lock:
+            points, self.points = self.points, []
+        return points
 
 
 class ViewerProcess:
@@ -297,10 +322,17 @@ class Episode:
             "AVS_NBV_ROI_MAX": csv(facts.roi_max),
             "AVS_NBV_STRATEGY": c.strategy,
             "AVS_NBV_SAMPLING": c.sampling,
-            "AVS_NBV_MAX_VIEWS": str(c.views),
+            "AVS_NBV_MAX_VIEWS": "1000",  # the explorer counts the views (and abandoned goals)
             "AVS_NBV_SEED": str(c.seed),
             "AVS_NBV_IG_MEASURE": c.ig_measure,
             "AVS_PERCEPTION_CAMERA": "registered" if c.fusion != "sg" else "head_rgbd",
+            "AVS_EXPLORER_CLOCK": "lockstep",
+            "AVS_EXPLORER_HOLD": "true",
+            "AVS_EXPLORER_VIEWS": str(c.views),
+            "AVS_EXPLORER_ROI_MIN": csv(facts.roi_min),
+            "AVS_EXPLORER_ROI_MAX": csv(facts.roi_max),
+            "AVS_EXPLORER_CENTRES": csv(facts.centres),
+            "AVS_EXPLORER_CAMERA": "head_rgbd",
         }
 
     def _query(self, session, key: str, request, schema, timeout: float = 60.0):
@@ -335,69 +367,6 @@ class Episode:
         if not status.ok:
             raise RuntimeError(f"sim/control {kw}: {status.error}")
         return status
-
-    def _step(self, session, n: int, base: Latest, joints: Latest) -> None:
-        """Step the lockstep sim ``n`` times and wait for the platform and joint states it
-        published: a decision on a state still on its way would make the episode depend on
-        the machine's load (the reply can overtake the streams)."""
-        status = self._sim(session, op="step", n=n)
-        for latest, stream in ((base, "base"), (joints, "joints")):
-            seq = status.published.get(stream)
-            if seq is not None:
-                latest.wait(lambda m, s=seq: m.seq >= s, 30, f"the sim's {stream} state {seq}")
-
-    def _await_commands(
-        self, session, seq: int, streams: tuple[str, ...], timeout: float = COMMAND_WAIT_S
-    ) -> None:
-        """Wait until the sim applied the planner's commands of step ``seq`` on ``streams``.
-        They travel from the planner, by a route of their own; the plan's reply and this
-        driver's first step can overtake them, and a goal that lands a step late drives
-        another trajectory (the episode would depend on the machine's load)."""
-        await_commands(lambda: self._sim(session, op="status"), seq, streams, timeout)
-
-    def _settle(
-        self, session, base: Latest, joints: Latest, nbv: NextBestView, goal: str, trajectory: list
-    ) -> bool:
-        """Step the lockstep sim until the platform reached its goal and the head its joints,
-        appending the platform's (x, y) to ``trajectory`` every 0.1 s. A platform that has not
-        arrived after twice its estimated time (plus 10 s) is stopped where it is, and the view
-        taken from there: False."""
-        targets = dict(zip(nbv.joint_names, nbv.joint_positions, strict=True))
-        steps = int((2 * nbv.cost + 10) / 0.1)
-        for _ in range(steps):
-            self._step(session, 100, base, joints)
-            if base.value is not None:
-                trajectory.append([round(base.value.x, 3), round(base.value.y, 3)])
-            b, j = base.value, joints.value
-            if b is None or j is None:
-                continue
-            arrived = not goal or (b.goal_id == goal and b.goal_status == "reached")
-            if b.goal_id == goal and b.goal_status == "aborted":
-                raise RuntimeError(f"the platform could not reach {goal}")
-            pos = dict(zip(j.names, j.position, strict=True))
-            vel = dict(zip(j.names, j.velocity, strict=True))
-            head = all(abs(pos[n] - v) < 0.01 and abs(vel[n]) < 0.02 for n, v in targets.items())
-            if arrived and head:
-                self._step(session, 50, base, joints)  # let it come to rest
-                return True
-        log.warning("the platform did not reach view %d: taking it from where it stands", nbv.step)
-        self.stop.put(
-            encode(
-                BaseVelocity(
-                    seq=nbv.step, stamp=time.time(), v_x=0.0, v_y=0.0, v_yaw=0.0, timeout=0.05
-                )
-            )
-        )
-        for _ in range(40):
-            self._step(session, 100, base, joints)
-            j = joints.value
-            pos = dict(zip(j.names, j.position, strict=True))
-            if (
-                all(abs(pos[n] - v) < 0.01 for n, v in targets.items())
-                and base.value.goal_status == "idle"
-            ):
-                break
-        return False
 
     def run(self) -> EpisodeResult:
         c = self.c
@@ -442,99 +411,108 @@ class Episode:
         return result
 
     def _loop(self, session, result: EpisodeResult, roi_lo, roi_hi) -> None:
+        """Start the explorer's episode and score each view it holds after, then resume it."""
         c, k = self.c, self.keys
+        status = Latest(session, k.explore_status(), ExploreStatus)
         base = Latest(session, k.base_state(), BasePose)
-        joints = Latest(session, k.joints(), JointState)
         frames = Latest(session, k.rgbd("head_rgbd"), RgbdFrame)
         scenes = Latest(session, k.scene(), SceneModel)
         corrections = Latest(session, k.pose_correction(), PoseCorrection)
-        self.stop = session.declare_publisher(k.cmd_base())
+        plans = Latest(session, k.next_view(), NextBestView)
+        trail = Trail(session, k.base_state())
         self._sim(session, op="reset", scene=c.scene, seed=c.seed)
         self._sim(session, op="step", n=10)
+        started = self._control(session, "start")
+        episode = started.episode
         roi = BoxQuery(box_min=roi_lo, box_max=roi_hi)
-        visited: list[list[float]] = []
         seen: list[dict[str, np.ndarray]] = []
-        accumulated = 0.0
-        for view in range(c.views):
-            t0 = time.perf_counter()
-            request = PlanRequest(
-                step=view, initial=view == 0, visited=np.array(visited).reshape(-1, 3)
-            )
-            nbv = self._query(session, k.plan(), request, NextBestView, timeout=300)
-            planning_s = time.perf_counter() - t0
-            if nbv.terminate:
-                result.terminated_by = "quality" if nbv.reason == "quality" else nbv.reason
-                result.termination_detail = nbv.detail
-                if nbv.detail:
-                    log.warning("the planner stopped (%s): %s", nbv.reason, nbv.detail)
-                break
-            # the first view is taken where the robot stands, unless it has to turn first
-            moves = view > 0 or nbv.cost > 0
-            goal, trajectory = f"view-{view}" if moves else "", []
-            self._await_commands(session, view, ("base", "head") if moves else ("head",))
-            reached = self._settle(session, base, joints, nbv, goal, trajectory)
-            n_frames = frames.count
-            self._sim(session, op="render")
-            frame = frames.wait(lambda f, n=n_frames: frames.count > n, 30, "the rendered frame")
-            scene = scenes.wait(lambda s, v=view: s.n_views >= v + 1, 120, f"the fused view {view}")
-            self._wait_integrated(session, view + 1)
-            gt = self._query(
-                session, k.ground_truth(), GroundTruthQuery(camera="head_rgbd"), GroundTruth
-            )
-            b = base.value
-            pose = [b.x, b.y, b.yaw]
-            visited.append(pose)
-            # the map placed the frame at its odometry pose, corrected by registration; the
-            # truth is scored where the true camera pose puts it
-            T_used, registration_ms, registration = frame.T_world_camera, 0.0, ""
-            if c.registration:
-                corr = corrections.wait(lambda m, s=frame.seq: m.frame_seq >= s, 30,
-                                        f"the pose correction of frame {frame.seq}")  # fmt: skip
-                T_used = corr.T_world_odom @ frame.T_world_camera
-                registration_ms = corr.registration_ms
-                registration = "accepted" if corr.accepted else corr.reason
-            T_true = gt.T_world_camera if gt.T_world_camera is not None else frame.T_world_camera
-            pose_error = pose_difference(T_true, T_used)
-            seen.append(evaluation.labelled_points(gt, frame.depth, frame.intrinsics, T_true))
-            scores = evaluation.score_primitives(
-                evaluation.merge_points(seen), scene.primitives, scope=evaluation.bodies_in_roi(gt)
-            )
-            support = evaluation.score_support(
-                gt, [(e.supporter, e.supported) for e in scene.support_edges], scores.bodies
-            )
-            stats = self._query(session, k.occupancy("stats"), roi, OccupancyStats)
-            cost = float(nbv.cost)
-            accumulated += cost
-            record = ViewRecord(
-                view, support.precision, support.recall, support.f1, int(stats.unknown),
-                cost, accumulated, scores.inlier_index, scores.overlapping_index, planning_s,
-                pose, float(nbv.information_gain), reached, [nbv.x, nbv.y, nbv.yaw],
-                trajectory, nbv.workers,
-                stats.realised_volume if c.ig_measure == "volume" else stats.realised_rays,
-                scores.vertex_precision, scores.segments_per_body, scores.bodies_merged,
-                pose_error[0], pose_error[1], registration_ms, registration,
-                np.round(T_used, 6).tolist(), np.round(T_true, 6).tolist(),
+        accumulated, scored, abandoned = 0.0, 0, 0
+        while True:
+            s = status.wait(
+                lambda m, n=scored: m.episode == episode
+                and (m.phase == "done" or (m.phase == "paused" and m.view > n)),
+                VIEW_WAIT_S, f"the explorer's view {scored + 1}",
             )  # fmt: skip
-            result.views.append(record)
-            self._check_gain(result.views)
-            edges = [(e.supporter, e.supported) for e in scene.support_edges]
-            result.final_support_edges = [
-                list(e) for e in evaluation.edge_names(edges, scores.bodies)
-            ]  # every fused edge
-            result.final_primitives = [
-                {"id": p.id, "kind": p.model.kind, "body": scores.bodies.get(p.id, ""),
-                 "center": [round(float(x), 3) for x in p.obb.center],
-                 "extent": [round(float(x), 3) for x in p.obb.extent],
-                 "inliers": p.inlier_count}
-                for p in scene.primitives
-            ]  # fmt: skip
-            if self.progress:
-                self.progress(view + 1, c.views, record)
-        else:
-            result.terminated_by = "max_views"
-        if not result.terminated_by:
-            result.terminated_by = "max_views"
+            if s.view > scored:
+                frame = frames.wait(lambda f, q=s.frame_seq: f.seq >= q, 30,
+                                    f"the frame of view {s.view}")  # fmt: skip
+                scene = scenes.wait(
+                    lambda m, q=frame.seq: m.frame_seq is not None and m.frame_seq >= q, 120,
+                    f"the model of view {s.view}",
+                )  # fmt: skip
+                gt = self._query(
+                    session, k.ground_truth(), GroundTruthQuery(camera="head_rgbd"), GroundTruth
+                )
+                b = base.value
+                pose = [b.x, b.y, b.yaw]
+                # the map placed the frame at its odometry pose, corrected by registration; the
+                # truth is scored where the true camera pose puts it
+                T_used, registration_ms, registration = frame.T_world_camera, 0.0, ""
+                if c.registration:
+                    corr = corrections.wait(lambda m, q=frame.seq: m.frame_seq >= q, 30,
+                                            f"frame {frame.seq}'s pose correction")  # fmt: skip
+                    T_used = corr.T_world_odom @ frame.T_world_camera
+                    registration_ms = corr.registration_ms
+                    registration = "accepted" if corr.accepted else corr.reason
+                T_true = (
+                    gt.T_world_camera if gt.T_world_camera is not None else frame.T_world_camera
+                )
+                pose_error = pose_difference(T_true, T_used)
+                seen.append(evaluation.labelled_points(gt, frame.depth, frame.intrinsics, T_true))
+                scores = evaluation.score_primitives(
+                    evaluation.merge_points(seen), scene.primitives,
+                    scope=evaluation.bodies_in_roi(gt),
+                )  # fmt: skip
+                support = evaluation.score_support(
+                    gt, [(e.supporter, e.supported) for e in scene.support_edges], scores.bodies
+                )
+                stats = self._query(session, k.occupancy("stats"), roi, OccupancyStats)
+                cost = float(s.cost)
+                accumulated += cost
+                nbv = plans.value
+                record = ViewRecord(
+                    s.view - 1, support.precision, support.recall, support.f1,
+                    int(stats.unknown), cost, accumulated, scores.inlier_index,
+                    scores.overlapping_index, s.planning_s, pose, float(s.predicted_gain),
+                    s.abandoned - abandoned,
+                    list(s.goal), trail.take(), nbv.workers if nbv is not None else 1,
+                    stats.realised_volume if c.ig_measure == "volume" else stats.realised_rays,
+                    scores.vertex_precision, scores.segments_per_body, scores.bodies_merged,
+                    pose_error[0], pose_error[1], registration_ms, registration,
+                    np.round(T_used, 6).tolist(), np.round(T_true, 6).tolist(),
+                )  # fmt: skip
+                result.views.append(record)
+                self._check_gain(result.views)
+                edges = [(e.supporter, e.supported) for e in scene.support_edges]
+                result.final_support_edges = [
+                    list(e) for e in evaluation.edge_names(edges, scores.bodies)
+                ]  # every fused edge
+                result.final_primitives = [
+                    {"id": p.id, "kind": p.model.kind, "body": scores.bodies.get(p.id, ""),
+                     "center": [round(float(x), 3) for x in p.obb.center],
+                     "extent": [round(float(x), 3) for x in p.obb.extent],
+                     "inliers": p.inlier_count}
+                    for p in scene.primitives
+                ]  # fmt: skip
+                scored, abandoned = s.view, s.abandoned
+                if self.progress:
+                    self.progress(s.view, c.views, record)
+            if s.phase == "done":
+                result.abandoned_goals = s.abandoned
+                result.terminated_by = s.reason or "max_views"
+                result.termination_detail = s.detail if s.reason != "max_views" else ""
+                if s.reason not in ("quality", "max_views") and s.detail:
+                    log.warning("the explorer stopped (%s): %s", s.reason, s.detail)
+                break
+            self._control(session, "resume")
         self._floor(session, result)
+
+    def _control(self, session, op: str) -> ExploreStatus:
+        status = self._query(session, self.keys.explore_control(), ExploreControl(op=op),
+                             ExploreStatus)  # fmt: skip
+        if not status.ok:
+            raise RuntimeError(f"explore/control {op}: {status.error}")
+        return status
 
     @staticmethod
     def _check_gain(views: list[ViewRecord]) -> None:
@@ -569,12 +547,3 @@ class Episode:
         result.floor_png = str(self.c.out / "floor.png")
         result.floor_origin = [float(origin[0]), float(origin[1])]
         result.floor_cell = float(v)
-
-    def _wait_integrated(self, session, frames: int) -> None:
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            stats = self._query(session, self.keys.occupancy("stats"), None, OccupancyStats)
-            if stats.frames_integrated + stats.frames_skipped >= frames:
-                return
-            time.sleep(0.05)
-        raise TimeoutError("the scene memory did not integrate the frame")
