@@ -256,10 +256,11 @@ def test_first_of_each_is_numpy_unique_s_first_indices():
 
 def test_a_segment_across_a_support_contact_does_not_replace_the_supporter():
     """Generated scene 1012: a plank on a block, both fused with the block → plank edge; a
-    later view segments the block's upper part and the plank as one flat box. It covers the
-    block's points (Inlier 1.0) but neither whole: it would replace the block and take the
-    plank's place in the graph. It is a segment across a contact, dropped like one around
-    several objects (``Fusion._spans_objects``)."""
+    later view segments the block's upper part and the plank as one box. It holds neither
+    whole: it would replace one of them and take its place in the graph. Holding more than
+    λ_p of its points in each (here 42-44 % in the block, 69-72 % in the plank, over the
+    builders' random draws; in scene 1012 33 % and 50 %), it is a segment across a contact,
+    dropped like one around several objects (``Fusion._spans_objects``)."""
     fusion = Fusion()
     table = plane(0, (0.4, 1.4), (-0.4, 0.4), 0.75)
     block = box(1, (0.9, 0.0, 0.822), (0.10, 0.066, 0.144))
@@ -268,7 +269,7 @@ def test_a_segment_across_a_support_contact_does_not_replace_the_supporter():
         fusion.update(observation(i, [table, block, plank], [(0, 1), (1, 2)],
                                   T=camera_above(0.9 + 0.02 * i)))  # fmt: skip
     before = {m.id: m.primitive.obb.extent.copy() for m in fusion.prims.values()}
-    top = block.inliers[block.inliers[:, 2] > 0.86]
+    top = block.inliers[block.inliers[:, 2] > 0.80]  # its upper 2/3: 42-44 % of the segment
     pts = np.concatenate([top, plank.inliers])
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     across = box(5, tuple((lo + hi) / 2), tuple(hi - lo))
