@@ -4,7 +4,8 @@ so perception and scene memory run on recordings of real robots. No ROS install 
 
 Colour and depth images are paired by the nearest header stamp (within --max-dt); depth may
 be 16UC1 (mm) or 32FC1 (m), colour rgb8, bgr8, rgba8, bgra8 or mono8, registered to each
-other (same size). Intrinsics come from the CameraInfo. With --tf the camera pose is the
+other (same size); compressed images too (CompressedImage: colour jpeg or png, depth
+compressedDepth png). Intrinsics come from the CameraInfo. With --tf the camera pose is the
 bag's tf tree (/tf and /tf_static) from its root, or --world-frame, to the CameraInfo's
 frame_id (an optical frame: x right, y down, z forward), the world z up; without it the pose
 is fixed (--pose). A TUM RGB-D benchmark bag:
