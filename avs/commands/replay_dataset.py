@@ -20,7 +20,7 @@ import math
 import sys
 from pathlib import Path
 
-from avs.commands._args import non_negative_float, non_negative_int
+from avs.commands._args import add_playback_arguments, non_negative_float, non_negative_int
 from avs.commands._transport import add_transport_arguments, connect, settings_from
 
 
@@ -56,18 +56,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--camera", default="head_rgbd",
                         help="publish on sensors/rgbd/CAMERA (default head_rgbd)")  # fmt: skip
-    play = parser.add_argument_group("playback")
-    play.add_argument("--rate", type=non_negative_float, default=1.0, metavar="F",
-                      help="speed factor on the recording's timing (default 1; 0: as fast "
-                      "as possible)")  # fmt: skip
-    play.add_argument("--start", type=non_negative_float, default=0.0, metavar="S",
-                      help="skip the first S s")  # fmt: skip
-    play.add_argument("--every", type=non_negative_int, default=1, metavar="N",
-                      help="every N-th frame (default 1)")  # fmt: skip
-    play.add_argument("--limit", type=non_negative_int, default=0, metavar="N",
-                      help="stop after N frames (0: all)")  # fmt: skip
-    play.add_argument("--wait", type=non_negative_float, default=10.0, metavar="S",
-                      help="wait up to S s for a subscriber before the first frame")  # fmt: skip
+    add_playback_arguments(parser, "recording").add_argument(
+        "--every", type=non_negative_int, default=1, metavar="N",
+        help="every N-th frame (default 1)",
+    )  # fmt: skip
     add_transport_arguments(parser)
     parser.set_defaults(func=_replay)
 
