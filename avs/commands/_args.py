@@ -88,3 +88,20 @@ def add_console_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="show the services' log lines live (always written to OUT/logs/<service>.log)",
     )
+
+
+def add_playback_arguments(parser: argparse.ArgumentParser, source: str) -> argparse._ArgumentGroup:
+    """``--rate``, ``--start``, ``--limit`` and ``--wait`` of a replay of ``source`` (a bag, a
+    dataset): the ``playback`` group both replays share, returned for their own flags."""
+    play = parser.add_argument_group("playback")
+    play.add_argument("--rate", type=non_negative_float, default=1.0, metavar="F",
+                      help=f"speed factor on the {source}'s timing (default 1; 0: as fast as "
+                      "possible)")  # fmt: skip
+    play.add_argument("--start", type=non_negative_float, default=0.0, metavar="S",
+                      help=f"skip the {source}'s first S s")  # fmt: skip
+    play.add_argument("--limit", type=non_negative_int, default=0, metavar="N",
+                      help="stop after N frames (0: all)")  # fmt: skip
+    play.add_argument("--wait", type=non_negative_float, default=10.0, metavar="S",
+                      help="wait up to S s for a subscriber before the first frame "
+                      "(default 10)")  # fmt: skip
+    return play

@@ -4,7 +4,8 @@ so perception and scene memory run on recordings of real robots. No ROS install 
 
 Colour and depth images are paired by the nearest header stamp (within --max-dt); depth may
 be 16UC1 (mm) or 32FC1 (m), colour rgb8, bgr8, rgba8, bgra8 or mono8, registered to each
-other (same size). Intrinsics come from the CameraInfo. With --tf the camera pose is the
+other (same size); compressed images too (CompressedImage: colour jpeg or png, depth
+compressedDepth png). Intrinsics come from the CameraInfo. With --tf the camera pose is the
 bag's tf tree (/tf and /tf_static) from its root, or --world-frame, to the CameraInfo's
 frame_id (an optical frame: x right, y down, z forward), the world z up; without it the pose
 is fixed (--pose). A TUM RGB-D benchmark bag:
@@ -20,7 +21,7 @@ import math
 import sys
 from pathlib import Path
 
-from avs.commands._args import non_negative_float, non_negative_int
+from avs.commands._args import add_playback_arguments, non_negative_float
 from avs.commands._transport import add_transport_arguments, connect, settings_from
 from services.adapters.rosbag.bag import BagError, BagFrames, BagReplayConfig
 from services.adapters.rosbag.convert import fixed_camera_pose
@@ -64,28 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--camera", default="head_rgbd", help="publish on sensors/rgbd/CAMERA (default head_rgbd)"
     )
-    play = parser.add_argument_group("playback")
-    play.add_argument(
-        "--rate",
-        type=non_negative_float,
-        default=1.0,
-        metavar="F",
-        help="speed factor on the bag's timing (default 1; 0: as fast as possible)",
-    )
-    play.add_argument(
-        "--start",
-        type=non_negative_float,
-        default=0.0,
-        metavar="S",
-        help="skip the bag's first S s",
-    )
-    play.add_argument(
-        "--limit",
-        type=non_negative_int,
-        default=0,
-        metavar="N",
-        help="stop after N frames (0: all)",
-    )
+    play = add_playback_arguments(parser, "bag")
     play.add_argument(
         "--max-dt",
         type=non_negative_float,
@@ -107,13 +87,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         default=[0.0, 0.0],
         metavar=("MIN", "MAX"),
         help="the sensor's valid depth range the frames announce, m (default 0 0: unknown)",
-    )
-    play.add_argument(
-        "--wait",
-        type=non_negative_float,
-        default=10.0,
-        metavar="S",
-        help="wait up to S s for a subscriber before the first frame (default 10)",
     )
     add_transport_arguments(parser)
     parser.set_defaults(func=_replay)

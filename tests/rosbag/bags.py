@@ -41,12 +41,16 @@ def write_tum_bag(
     rgb_delay: float = 0.007,
     decoy_rgb: bool = True,
     with_tf: bool = True,
+    compressed: str | None = None,
 ) -> list[float]:
     """Write ``frames`` as a bag at ``path`` (ROS 1: a ``.bag`` file; ROS 2: a directory);
     depth in ``depth_encoding`` (16UC1: millimetres; 32FC1: metres). Each colour image is
     stamped ``rgb_delay`` after its depth image; with ``decoy_rgb`` a colour image 40 ms
     before the first depth image has no depth partner; ``with_tf=False`` leaves out /tf and
-    /tf_static. Returns the depth images' stamps."""
+    /tf_static. ``compressed`` ("png", "jpeg"): colour as ``sensor_msgs/CompressedImage`` in
+    that codec and depth as ``compressedDepth`` (a 12-byte header, then a 16-bit PNG: mm for
+    16UC1, quantised inverse depth for 32FC1, as compressed_depth_image_transport writes
+    them). Returns the depth images' stamps."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
     if ros == 1:
@@ -66,6 +70,7 @@ def write_tum_bag(
     T = store.types
     Time, Header = T["builtin_interfaces/msg/Time"], T["std_msgs/msg/Header"]
     Image, Info = T["sensor_msgs/msg/Image"], T["sensor_msgs/msg/CameraInfo"]
+    Compressed = T["sensor_msgs/msg/CompressedImage"]
     Roi = T["sensor_msgs/msg/RegionOfInterest"]
     Tf, Transform = T["geometry_msgs/msg/TransformStamped"], T["geometry_msgs/msg/Transform"]
     Vector3, Quaternion = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
@@ -82,6 +87,20 @@ def write_tum_bag(
         data = np.ascontiguousarray(pixels).view(np.uint8).reshape(-1)
         return Image(header=header(t, optical, seq), height=h, width=w, encoding=encoding,
                      is_bigendian=0, step=data.size // h, data=data)  # fmt: skip
+
+    def packed(t: float, pixels: np.ndarray, encoding: str, seq: int):
+        if encoding in ("16UC1", "32FC1"):
+            fmt, data = compressed_depth(pixels, encoding)
+        else:
+            fmt, data = (
+                f"{encoding}; {compressed} compressed {encoding}",
+                encoded(pixels if encoding == "rgb8" else pixels[:, :, ::-1], compressed),
+            )
+        return Compressed(header=header(t, optical, seq), format=fmt,
+                          data=np.frombuffer(data, np.uint8))  # fmt: skip
+
+    if compressed:
+        image = packed  # the compressed form of the same images
 
     def transform(t: float, parent: str, child: str, M: np.ndarray):
         x, y, z, w = Rotation.from_matrix(M[:3, :3]).as_quat()
@@ -101,7 +120,8 @@ def write_tum_bag(
         def add(topic: str, msgtype: str):
             return writer.add_connection(topic, msgtype, typestore=store)
 
-        c_rgb, c_depth = add(RGB, Image.__msgtype__), add(DEPTH, Image.__msgtype__)
+        kind = (Compressed if compressed else Image).__msgtype__
+        c_rgb, c_depth = add(RGB, kind), add(DEPTH, kind)
         c_info = add(INFO, Info.__msgtype__)
         c_tf = add("/tf", tf_type) if with_tf else None
         put = lambda c, t, msg: writer.write(c, _ns(t), serialize(msg, c.msgtype))  # noqa: E731
@@ -136,6 +156,38 @@ def write_tum_bag(
             rgb = f.rgb if rgb_encoding == "rgb8" else np.ascontiguousarray(f.rgb[:, :, ::-1])
             put(c_rgb, t + rgb_delay, image(t + rgb_delay, rgb, rgb_encoding, i))
     return stamps
+
+
+def encoded(pixels: np.ndarray, codec: str) -> bytes:
+    """An image's bytes in ``codec`` (png, jpeg)."""
+    import io
+
+    from PIL import Image as PilImage
+
+    out = io.BytesIO()
+    PilImage.fromarray(pixels).save(out, format="PNG" if codec == "png" else "JPEG", quality=95)
+    return out.getvalue()
+
+
+#: compressed_depth_image_transport's defaults for 32FC1: depth_max 10 m, quantisation 100
+DEPTH_QUANT_A = 100 * 101.0
+DEPTH_QUANT_B = 1.0 - DEPTH_QUANT_A / 10.0
+
+
+def compressed_depth(depth: np.ndarray, encoding: str) -> tuple[str, bytes]:
+    """(format, data) of a compressedDepth message: ConfigHeader (int32 format 1 = PNG, two
+    float32 quantisation parameters) + a 16-bit PNG. 16UC1: the millimetres as they are;
+    32FC1: inverse depth A / d + B (0: no depth)."""
+    if encoding == "16UC1":
+        values, a, b = depth.astype(np.uint16), 0.0, 0.0
+    else:
+        d = np.nan_to_num(depth.astype(np.float64), nan=0.0)
+        values = np.zeros(d.shape, np.uint16)
+        ok = d > 0
+        values[ok] = np.round(DEPTH_QUANT_A / d[ok] + DEPTH_QUANT_B).astype(np.uint16)
+        a, b = DEPTH_QUANT_A, DEPTH_QUANT_B
+    header = np.array([1], "<i4").tobytes() + np.array([a, b], "<f4").tobytes()
+    return f"{encoding}; compressedDepth png", header + encoded(values, "png")
 
 
 def as_stored(frame: RgbdFrame, depth_encoding: str) -> RgbdFrame:

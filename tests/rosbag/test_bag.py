@@ -62,6 +62,32 @@ def test_a_bag_gives_back_the_frames_it_was_written_from(tmp_path, frames, ros, 
         assert 0 < np.abs(got[0].depth - frames[0].depth).max() <= 0.0005 + 1e-6
 
 
+@pytest.mark.parametrize(("ros", "depth", "codec"), [(1, "16UC1", "png"), (2, "32FC1", "jpeg")])
+def test_a_bag_of_compressed_images_gives_back_its_frames(tmp_path, frames, ros, depth, codec):
+    """CompressedImage colour (PNG lossless, JPEG within its artefacts) and compressedDepth
+    depth (16UC1 mm lossless; 32FC1 quantised inverse depth, d² / 10100 at worst)."""
+    path = _bag(tmp_path, frames, ros, depth, compressed=codec)
+    got, bag = _read(path, tf=True)
+    assert len(got) == len(frames) and not bag.skipped
+    for g, f in zip(got, frames, strict=True):
+        want = as_stored(f, depth)
+        if codec == "png":
+            np.testing.assert_array_equal(g.rgb, f.rgb)
+        else:
+            assert g.rgb.shape == f.rgb.shape and np.abs(g.rgb.astype(int) - f.rgb).mean() < 4
+        valid = want.depth > 0
+        np.testing.assert_array_equal(g.depth > 0, valid)
+        step = want.depth**2 / 10100 if depth == "32FC1" else np.zeros_like(want.depth)
+        assert np.all(np.abs(g.depth - want.depth)[valid] <= (step / 2 + 1e-6)[valid])
+
+
+def test_a_compressed_format_it_cannot_read_names_the_topic(tmp_path, frames):
+    path = _bag(tmp_path, frames, 1, "16UC1", compressed="png")
+    with pytest.raises(BagError, match="--depth topic /camera/rgb/image_color: compressed "
+                       "depth format 'rgb8; png compressed rgb8': the depth encoding"):  # fmt: skip
+        _read(path, rgb=DEPTH, depth=RGB)
+
+
 def test_pose_without_tf_world_frame_limit_and_start(tmp_path, frames):
     path = _bag(tmp_path, frames, 1)
     T_fixed = fixed_camera_pose(0.5, 0, 1.2, 0, 0.3, 0)

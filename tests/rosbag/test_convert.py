@@ -139,3 +139,49 @@ def test_depth_pairs_with_the_nearest_colour_within_the_window():
     # colour logged before an earlier depth image (stamps out of log order) still pairs
     late = [("rgb", 0.012, "r0"), ("rgb", 0.045, "r1"), ("depth", 0.0, "d0"), ("depth", 0.04, "d1")]
     assert [(d, r) for _t, d, r in pair_by_stamp(late, 0.02)] == [("d0", "r0"), ("d1", "r1")]
+
+
+def test_compressed_depth_decodes_as_compressed_depth_image_transport_encodes():
+    """16UC1: millimetres, lossless; 32FC1: inverse depth quantised (A = 10100, B = −1009 for
+    10 m and 100 levels), within the quantisation step (d² / A: 0.4 mm at 2 m); 0 is none."""
+    from services.adapters.rosbag.convert import depth_from_compressed
+    from tests.rosbag.bags import compressed_depth
+
+    depth = np.array([[0.0, 0.5, 1.0], [2.0, 3.25, 7.5]], np.float32)
+    fmt, data = compressed_depth(np.round(depth * 1000), "16UC1")
+    assert fmt == "16UC1; compressedDepth png"
+    np.testing.assert_allclose(depth_from_compressed(fmt, data), depth, atol=1e-6)
+    fmt, data = compressed_depth(depth, "32FC1")
+    got = depth_from_compressed(fmt, data)
+    assert got[0, 0] == 0.0
+    step = depth**2 / 10100
+    assert np.all(np.abs(got - depth) <= step / 2 + 1e-6), got - depth
+
+
+def test_compressed_colour_decodes_jpeg_and_png():
+    from services.adapters.rosbag.convert import rgb_from_compressed
+    from tests.rosbag.bags import encoded
+
+    rgb = np.zeros((16, 24, 3), np.uint8)
+    rgb[:, :12] = (200, 40, 10)
+    np.testing.assert_array_equal(rgb_from_compressed("png", encoded(rgb, "png")), rgb)
+    jpeg = rgb_from_compressed("rgb8; jpeg compressed bgr8", encoded(rgb, "jpeg"))
+    assert jpeg.shape == rgb.shape and np.abs(jpeg.astype(int) - rgb).mean() < 3
+
+
+@pytest.mark.parametrize(
+    ("which", "fmt", "data", "message"),
+    [
+        ("depth", "16UC1; compressedDepth jpeg", b"\x00" * 20, "png only"),
+        ("depth", "8UC1; compressedDepth png", b"", "must be 16UC1 or 32FC1"),
+        ("depth", "16UC1; compressedDepth png", b"\x00" * 12 + b"nonsense", "no image PIL"),
+        ("colour", "16UC1; compressedDepth png", b"", "is a compressedDepth depth image"),
+        ("colour", "theora", b"", r"not supported \(jpeg, png\)"),
+    ],
+)
+def test_bad_compressed_images_say_what_is_wrong(which, fmt, data, message):
+    from services.adapters.rosbag.convert import depth_from_compressed, rgb_from_compressed
+
+    decode = depth_from_compressed if which == "depth" else rgb_from_compressed
+    with pytest.raises(ConversionError, match=message):
+        decode(fmt, data)

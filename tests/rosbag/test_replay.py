@@ -109,12 +109,18 @@ def _centre(p) -> np.ndarray:
     return np.asarray(p.model.center if p.kind != "plane" else p.obb.center)
 
 
-@pytest.mark.parametrize(("ros", "depth", "rgb"), [(1, "32FC1", "rgb8"), (2, "16UC1", "bgr8")])
+@pytest.mark.parametrize(
+    ("ros", "depth", "rgb", "compressed"),
+    [(1, "32FC1", "rgb8", None), (2, "16UC1", "bgr8", None),
+     (1, "16UC1", "rgb8", "png"), (2, "16UC1", "bgr8", "png")],
+)  # fmt: skip
 def test_replayed_bag_gives_the_direct_observations_where_the_scene_is(
-    tmp_path, stack, ros, depth, rgb
+    tmp_path, stack, ros, depth, rgb, compressed
 ):
+    """Raw images, and compressed ones (PNG colour, compressedDepth 16UC1: both lossless, so
+    the observations are the same to the bit)."""
     bag = tmp_path / ("tum.bag" if ros == 1 else "tum")
-    write_tum_bag(bag, stack.frames, ros, depth, rgb_encoding=rgb)
+    write_tum_bag(bag, stack.frames, ros, depth, rgb_encoding=rgb, compressed=compressed)
     with stack.lock:
         before = len(stack.seen)
     t0 = time.monotonic()

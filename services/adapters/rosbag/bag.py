@@ -18,11 +18,13 @@ import numpy as np
 from schemas import CameraIntrinsics, RgbdFrame
 from services.adapters.rosbag.convert import (
     ConversionError,
+    depth_from_compressed,
     depth_from_image,
     fixed_camera_pose,
     has_distortion,
     image_array,
     intrinsics_from_camera_info,
+    rgb_from_compressed,
     rgb_from_image,
 )
 from services.adapters.rosbag.tf import ExtrapolationError, TfError, TransformTree, frame_name
@@ -30,6 +32,7 @@ from services.adapters.rosbag.tf import ExtrapolationError, TfError, TransformTr
 log = logging.getLogger("avs.adapters.rosbag")
 
 IMAGE_TYPE = "sensor_msgs/msg/Image"
+COMPRESSED_TYPE = "sensor_msgs/msg/CompressedImage"
 INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 TF_TOPICS = ("/tf", "/tf_static")
 
@@ -182,15 +185,15 @@ class BagFrames:
         c = self.config
         topics = self._reader.topics
         listing = ", ".join(f"{name} ({info.msgtype})" for name, info in sorted(topics.items()))
-        wanted = {"--rgb": (c.rgb, IMAGE_TYPE), "--depth": (c.depth, IMAGE_TYPE),
-                  "--camera-info": (c.camera_info, INFO_TYPE)}  # fmt: skip
-        for flag, (topic, msgtype) in wanted.items():
+        images = (IMAGE_TYPE, COMPRESSED_TYPE)
+        wanted = {"--rgb": (c.rgb, images), "--depth": (c.depth, images),
+                  "--camera-info": (c.camera_info, (INFO_TYPE,))}  # fmt: skip
+        for flag, (topic, msgtypes) in wanted.items():
             if topic not in topics:
                 raise BagError(f"{flag} topic {topic} is not in the bag (topics: {listing})")
             have = topics[topic].msgtype
-            if have != msgtype:
-                hint = " (compressed images are not supported)" if "Compressed" in str(have) else ""
-                raise BagError(f"{flag} topic {topic} carries {have}, not {msgtype}{hint}")
+            if have not in msgtypes:
+                raise BagError(f"{flag} topic {topic} carries {have}, not {' or '.join(msgtypes)}")
             if topics[topic].msgcount == 0:
                 raise BagError(f"{flag} topic {topic} has no messages")
         if c.rgb == c.depth:
@@ -265,8 +268,18 @@ class BagFrames:
         return self.intrinsics
 
     @staticmethod
-    def _image(flag: str, topic: str, msg: Any, convert: Callable[[np.ndarray, str], np.ndarray]):
+    def _image(
+        flag: str,
+        topic: str,
+        msg: Any,
+        convert: Callable[[np.ndarray, str], np.ndarray],
+        compressed: Callable[[str, Any], np.ndarray],
+    ):
+        """A message's pixels through ``convert`` (Image) or ``compressed`` (CompressedImage,
+        its ``format`` and data); a message that cannot be read names its topic and why."""
         try:
+            if hasattr(msg, "format"):  # sensor_msgs/CompressedImage
+                return compressed(str(msg.format), msg.data)
             pixels = image_array(msg.encoding, int(msg.height), int(msg.width), int(msg.step),
                                  msg.data, bool(msg.is_bigendian))  # fmt: skip
             return convert(pixels, msg.encoding)
@@ -278,10 +291,12 @@ class BagFrames:
     ) -> RgbdFrame:
         """The RgbdFrame of one pair of images at ``stamp`` (the depth image's)."""
         c = self.config
-        depth = self._image("--depth", c.depth, depth_msg,
-                            lambda pixels, encoding: depth_from_image(pixels, encoding,
-                                                                      c.depth_scale))  # fmt: skip
-        rgb = self._image("--rgb", c.rgb, rgb_msg, rgb_from_image)
+        depth = self._image(
+            "--depth", c.depth, depth_msg,
+            lambda pixels, encoding: depth_from_image(pixels, encoding, c.depth_scale),
+            lambda fmt, data: depth_from_compressed(fmt, data, c.depth_scale),
+        )  # fmt: skip
+        rgb = self._image("--rgb", c.rgb, rgb_msg, rgb_from_image, rgb_from_compressed)
         h, w = depth.shape
         if rgb.shape[:2] != (h, w):
             raise BagError(

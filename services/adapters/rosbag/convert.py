@@ -95,6 +95,74 @@ def depth_from_image(pixels: np.ndarray, encoding: str, scale: float | None = No
     return depth_to_metres(pixels, scale)
 
 
+#: the first bytes of a PNG; compressedDepth data starts with a 12-byte header before them
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+#: compressed_depth_image_transport's ConfigHeader: format (int32), depthQuantA, depthQuantB
+COMPRESSED_DEPTH_HEADER = 12
+
+
+def _decode_image(data: bytes, what: str):
+    import io
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(io.BytesIO(data)) as im:
+            im.load()
+            return im.copy()
+    except (UnidentifiedImageError, OSError) as e:
+        raise ConversionError(f"{what}: the data is no image PIL can read ({e})") from None
+
+
+def rgb_from_compressed(fmt: str, data: bytes | np.ndarray) -> np.ndarray:
+    """(h, w, 3) uint8 RGB from a ``sensor_msgs/CompressedImage`` (``format`` "jpeg", "png",
+    or image_transport's "bgr8; jpeg compressed bgr8"). The codec's colour order is RGB
+    whatever the format names: JPEG and PNG store RGB, image_transport converts on encoding."""
+    kind = fmt.split(";")[-1].strip().lower()
+    if "compresseddepth" in fmt.lower():
+        raise ConversionError(f"colour image format {fmt!r} is a compressedDepth depth image")
+    if not any(k in kind for k in ("jpeg", "jpg", "png")):
+        raise ConversionError(f"compressed colour format {fmt!r} is not supported (jpeg, png)")
+    im = _decode_image(bytes(data), f"compressed colour ({fmt!r})")
+    return np.asarray(im.convert("RGB"), np.uint8)
+
+
+def depth_from_compressed(fmt: str, data: bytes | np.ndarray, scale: float | None = None
+                          ) -> np.ndarray:  # fmt: skip
+    """Metres from a ``compressedDepth`` CompressedImage (``format`` "16UC1; compressedDepth
+    png" or "32FC1; compressedDepth png"): a 12-byte header (format, depthQuantA, depthQuantB)
+    then a 16-bit PNG: millimetres for 16UC1; for 32FC1 inverse depth, d = A / (v − B), 0 none
+    (compressed_depth_image_transport). A plain PNG of 16-bit mm is taken too."""
+    raw = bytes(data)
+    encoding = fmt.split(";")[0].strip()
+    if encoding not in ("16UC1", "32FC1"):
+        raise ConversionError(
+            f"compressed depth format {fmt!r}: the depth encoding must be 16UC1 or 32FC1"
+        )
+    if "png" not in fmt.lower() and not raw.startswith(PNG_SIGNATURE):
+        raise ConversionError(f"compressed depth format {fmt!r} is not supported (png only)")
+    header = b""
+    if not raw.startswith(PNG_SIGNATURE):
+        header, raw = raw[:COMPRESSED_DEPTH_HEADER], raw[COMPRESSED_DEPTH_HEADER:]
+    pixels = np.asarray(_decode_image(raw, f"compressed depth ({fmt!r})"))
+    if pixels.ndim != 2 or pixels.dtype.itemsize != 2:
+        raise ConversionError(
+            f"compressed depth ({fmt!r}) holds a {pixels.dtype} {pixels.shape} image, "
+            "not 16-bit single-channel"
+        )
+    values = pixels.astype(np.uint16)
+    if encoding == "16UC1":
+        return depth_to_metres(values, scale)
+    if len(header) != COMPRESSED_DEPTH_HEADER:
+        raise ConversionError(f"compressed 32FC1 depth ({fmt!r}) has no quantisation header")
+    a, b = np.frombuffer(header[4:12], "<f4").astype(np.float64)
+    v = values.astype(np.float64)
+    depth = np.zeros(values.shape, np.float32)
+    ok = (values > 0) & (v - b > 0)
+    depth[ok] = (a / (v[ok] - b)).astype(np.float32)
+    return depth
+
+
 def intrinsics_from_camera_info(K: Sequence[float], width: int, height: int) -> CameraIntrinsics:
     """Pinhole intrinsics from a CameraInfo's 3×3 ``K`` (row major) for an image of
     width × height. Lens distortion is not modelled (see ``has_distortion``)."""

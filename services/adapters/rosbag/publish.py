@@ -18,19 +18,19 @@ log = logging.getLogger("avs.adapters.rosbag")
 class Progress:
     """One progress line on stderr: rewritten in place on a terminal, else every 10 %."""
 
-    def __init__(self, total: int, out: TextIO = sys.stderr) -> None:
-        self.total, self.out = max(total, 1), out
+    def __init__(self, total: int, out: TextIO = sys.stderr, label: str = "replay-bag") -> None:
+        self.total, self.out, self.label = max(total, 1), out, label
         self.tty = out.isatty()
         self._last = -1
 
     def update(self, done: int, seconds: float) -> None:
         share = min(100, 100 * done // self.total)
         if self.tty:
-            self.out.write(f"\rreplay-bag: {done}/{self.total} frames ({share} %), "
-                           f"{seconds:.1f} s of the bag")  # fmt: skip
+            self.out.write(f"\r{self.label}: {done}/{self.total} frames ({share} %), "
+                           f"{seconds:.1f} s recorded")  # fmt: skip
             self.out.flush()
         elif share // 10 > self._last // 10:
-            self.out.write(f"replay-bag: {done}/{self.total} frames ({share} %)\n")
+            self.out.write(f"{self.label}: {done}/{self.total} frames ({share} %)\n")
             self.out.flush()
         self._last = share
 
