@@ -49,6 +49,7 @@ from schemas import (
 )
 from services.common import sat
 from services.common.sat import boxes_overlap, overlap, pairs_overlap
+from services.scene_memory.evidence import ViewDepth, depth_sigma
 
 MAX_POINTS = 6000  # points a memory primitive keeps (voxel-downsampled)
 BOX_GROWTH = 0.01  # m: points this far beyond a box's face make it grow
@@ -66,6 +67,11 @@ class FusionConfig:
     voxel: float = 0.01  # downsampling of merged inlier clouds
     plane_angle_deg: float = 5.0  # CompareModelParameters tolerances
     plane_offset: float = 0.01
+    #: ... or, farther from the camera, this many σ(z) of a structured-light sensor's depth
+    #: noise at the plane's distance (σ(z) = 0.0012 + 0.0019·(z − 0.4)², Nguyen et al. 2012:
+    #: 9.6 mm at 2.5 m, where Kinect v1's depth comes in 18 mm steps): a wall seen from 2.5 m
+    #: in two views sits 1-2 cm apart; 0: ``plane_offset`` at any distance
+    plane_offset_sigmas: float = 2.0
     axis_angle_deg: float = 10.0
     radius: float = 0.015
     center: float = 0.03
@@ -78,6 +84,14 @@ class FusionConfig:
     floor_max: float = 0.3  # ... when it lies this low (the world's ground is z = 0)
     ground_area: float = 0.2  # level surfaces this large count as ground (stability)
     rest_tolerance: float = 0.03  # a supported primitive reaches this far below its supporter
+    #: negative evidence (``evidence.py``): a primitive that this many views in a row saw
+    #: through (more than ``through_share`` of its points with evidence, at least
+    #: ``through_points`` of them) is gone from the scene; 0: never
+    decay_views: int = 2
+    through_share: float = 0.5
+    through_points: int = 10
+    through_margin: float = 0.02  # m beyond the depth noise (registration, a surface's thickness)
+    through_cell: int = 16  # px: the grid a view's surfaces are compared in
     mode: str = "sg"  # pc | sg | pc+sg
 
 
@@ -87,6 +101,7 @@ class MemoryPrimitive:
     primitive: Primitive  # model, OBB, colour as last fused (id field = memory id)
     points: np.ndarray  # (n, 3) float32 fused inliers
     views: int = 1
+    seen_through: int = 0  # views in a row that saw through it since it was last matched
 
 
 @dataclass
@@ -95,6 +110,7 @@ class Update:
     modified: int = 0
     removed: int = 0
     dropped: int = 0  # new primitives that merged several the memory holds apart
+    decayed: int = 0  # of the removed: seen through by ``decay_views`` views in a row
     mapping: dict[int, int] = field(default_factory=dict)  # observation id → memory id
 
 
@@ -256,15 +272,18 @@ def _large_plane(a: Primitive, b: Primitive, c: FusionConfig) -> bool:
 SOLIDS = {"box", "cylinder", "sphere"}
 
 
-def compare_models(a: Primitive, b: Primitive, c: FusionConfig) -> bool:
-    """CompareModelParameters: same kind and parameters within tolerance (boxes: axes)."""
+def compare_models(a: Primitive, b: Primitive, c: FusionConfig, distance: float = 0.0) -> bool:
+    """CompareModelParameters: same kind and parameters within tolerance (boxes: axes).
+    ``distance``: how far from its camera ``a`` was seen (m): planes seen far agree within
+    the depth noise there (``plane_offset_sigmas``)."""
     ma, mb = a.model, b.model
     if ma.kind != mb.kind:
         return False
     if ma.kind == "plane":
         if _angle(ma.normal, mb.normal) > c.plane_angle_deg:
             return False
-        return abs(float(mb.normal @ a.obb.center) + mb.d) < c.plane_offset
+        tolerance = max(c.plane_offset, c.plane_offset_sigmas * depth_sigma(distance))
+        return abs(float(mb.normal @ a.obb.center) + mb.d) < tolerance
     if ma.kind == "cylinder":
         if _angle(ma.axis, mb.axis) > c.axis_angle_deg or abs(ma.radius - mb.radius) > c.radius:
             return False
@@ -615,6 +634,7 @@ class Fusion:
                 if m.id not in taking_part and _on_floor(m.primitive, floor, c)
             ]
         near_of = _Near(visible, max(c.plane_gap, c.obb_margin))
+        eye = np.asarray(obs.T_world_camera, float)[:3, 3]
         for phi in obs.primitives:
             pts = phi.inliers.astype(np.float64)
             outcome, target = "add", None
@@ -624,6 +644,8 @@ class Fusion:
                 continue  # segment that merged touching objects, not a better view of one
             phi_on_floor = floor is not None and _on_floor(phi, floor, c)
             near = near_of(phi.obb)
+            distance = 0.0 if whole else float(np.linalg.norm(phi.obb.center - eye))
+            pieces: list[MemoryPrimitive] = []  # memory planes φ is a piece of the same plane as
             for psi, close in zip(visible, near, strict=True):
                 if psi.id not in self.prims:
                     continue
@@ -660,7 +682,7 @@ class Fusion:
                         outcome, target, best = decision, psi, max(in_new, in_old)
                     continue
                 solids = kinds <= SOLIDS
-                if not solids and not compare_models(phi, psi.primitive, c):
+                if not solids and not compare_models(phi, psi.primitive, c, distance):
                     continue
                 in_new = inlier(pts, psi.primitive.obb, c.obb_margin, boxes)
                 in_old = inlier(psi.points, phi.obb, c.obb_margin, boxes)
@@ -668,7 +690,7 @@ class Fusion:
                 # extent is no such parameter: a part seen is smaller than the whole)
                 same_model = (
                     phi.model.kind == psi.primitive.model.kind != "box"
-                    and compare_models(phi, psi.primitive, c)
+                    and compare_models(phi, psi.primitive, c, distance)
                     and max(in_new, in_old) > c.lambda_p
                 )
                 if solids and max(in_new, in_old) <= c.lambda_o and not same_model:
@@ -694,6 +716,8 @@ class Fusion:
                 else:
                     continue  # partial overlap: both survive
                 score = max(in_new, in_old)
+                if phi.model.kind == psi.primitive.model.kind == "plane":
+                    pieces.append(psi)
                 if outcome == "add" or score > best:
                     outcome, target, best = decision, psi, score
             if outcome in ("same", "covered"):
@@ -701,6 +725,7 @@ class Fusion:
                     pts = self._not_annexed(target, pts, visible)
                 if self._merge_into(target, pts) and outcome == "same":
                     result.modified += 1
+                result.removed += self._join_pieces(target, pieces, distance, result)
                 near_of.moved(target)
                 result.mapping[phi.id] = target.id
                 continue
@@ -719,12 +744,72 @@ class Fusion:
             self.prims[mid] = mem
             result.mapping[phi.id] = mid
             result.added += 1
+            result.removed += self._join_pieces(mem, pieces, distance, result)
+        if not whole:
+            result.decayed = self._decay(obs, visible, set(result.mapping.values()))
+            result.removed += result.decayed
         self._combine_support(obs, result.mapping)
         result.removed += self._consolidate(set(result.mapping.values()), visible, result)
         self.n_views += 1
         self.version += 1
         self.last = result
         return result
+
+    def _decay(
+        self, obs: SceneObservation, visible: list[MemoryPrimitive], matched: set[int]
+    ) -> int:
+        """Negative evidence (``evidence.py``): the memory primitives in view that this view
+        did not match and saw through count it; ``decay_views`` in a row remove them (a
+        moved or gone object, a veil of flying pixels). A match resets the count. Returns
+        how many went."""
+        c = self.config
+        if c.decay_views <= 0:
+            return 0
+        depth, gone = None, 0
+        for m in visible:
+            if m.id not in self.prims:
+                continue
+            if m.id in matched:
+                m.seen_through = 0
+                continue
+            depth = depth or ViewDepth(obs, c.through_cell)
+            through, evidence = depth.seen_through(m.points, c.through_margin)
+            if evidence < c.through_points or through <= c.through_share * evidence:
+                continue
+            m.seen_through += 1
+            if m.seen_through >= c.decay_views:
+                self.prims.pop(m.id)
+                gone += 1
+        return gone
+
+    def _join_pieces(
+        self,
+        target: MemoryPrimitive,
+        pieces: list[MemoryPrimitive],
+        distance: float,
+        result: Update,
+    ) -> int:
+        """The other memory planes a new plane matched too (it bridged them: a table top seen
+        first in two halves, then whole) join the one it merged into or replaced, where they
+        agree with it (Algorithm 2 never compares the memory with itself, and keeps only the
+        best match, so without this the halves stayed apart). Returns how many went."""
+        c, gone = self.config, 0
+        if target.primitive.model.kind != "plane":
+            return 0
+        for m in pieces:
+            if m.id == target.id or m.id not in self.prims:
+                continue
+            if not compare_models(m.primitive, target.primitive, c, distance):
+                continue
+            self.prims.pop(m.id)
+            self._merge_into(target, m.points.astype(np.float64))
+            target.views += m.views - 1
+            self._rename_edges(m.id, target.id)
+            for k, v in result.mapping.items():
+                if v == m.id:
+                    result.mapping[k] = target.id
+            gone += 1
+        return gone
 
     def _not_annexed(
         self, solid: MemoryPrimitive, points: np.ndarray, visible: list[MemoryPrimitive]

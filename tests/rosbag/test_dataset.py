@@ -7,11 +7,9 @@ tests that need them are skipped, saying where the data comes from."""
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import threading
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,14 +21,7 @@ from services.adapters.dataset.formats import DatasetError, detect, read
 from services.adapters.dataset.frames import DatasetFrames
 from services.adapters.dataset.gravity import back_project, level_frame
 from tests.conftest import ROOT, avs_env, free_port, session_config, wait_for
-
-#: the real recordings: ``AVS_REAL_DATA``, else ``../shared/data/real`` beside the checkout
-REAL = Path(os.environ.get("AVS_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
-needs_real = pytest.mark.skipif(
-    not (REAL / "redkitchen-a").is_dir() or not (REAL / "fetch-table").is_dir(),
-    reason=f"the real recordings are not at {REAL} (7-Scenes redkitchen, Microsoft Research; "
-    "HRT1 fetch-table, UT Dallas: see that folder's README.md)",
-)
+from tests.real import REAL, needs_real
 
 
 def _write_tum(root, stamps_rgb, stamps_depth, size=(64, 48), value=5000):
