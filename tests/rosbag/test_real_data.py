@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.real_data import DRIFT, level_planes, pose_errors, run_recording
+from benchmarks.real_data import DRIFT, grouped, level_planes, pose_errors, run_recording
 from schemas import Obb, PlaneModel, PoseCorrection, Primitive, SceneModel
 from services.adapters.dataset.drift import Drift, drift_transform
 from services.adapters.dataset.formats import Intrinsics, Recording
@@ -53,7 +53,8 @@ def test_the_pose_the_memory_holds_is_its_last_correction_times_the_carried_pose
     assert drift == pytest.approx([0, 2, 4, 6, 8, 10, 12], abs=1e-9)
     assert errors == pytest.approx([0, 2, 4, 6, 0, 2, 4], abs=1e-9)
     assert (got["pose_error_mm"], got["drift_error_mm"]) == (4.0, 12.0)
-    assert got["registered"] == 1 and got["refused"] == 0 and got["reasons"] == {"not_due": 1}
+    assert (got["mapped"], got["registered"], got["refused"]) == (3, 1, 0)
+    assert got["reasons"] == {"not_due": 1}
 
 
 def test_level_planes_are_the_large_level_ones():
@@ -72,6 +73,12 @@ def test_level_planes_are_the_large_level_ones():
         plane(4, (1, 0, 0), 1.0, 1.0),  # a wall
     ])  # fmt: skip
     assert level_planes(model) == [0.0, 0.72]
+    assert grouped([0.0, 0.01, 0.02, 0.72, 0.44, 0.035, 0.74]) == [
+        (0.01, 3),
+        (0.035, 1),
+        (0.44, 1),
+        (0.73, 2),
+    ]
 
 
 @needs_real
