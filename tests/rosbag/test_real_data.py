@@ -19,7 +19,7 @@ from schemas import Obb, PlaneModel, PoseCorrection, Primitive, SceneModel
 from services.adapters.dataset.drift import Drift, drift_transform
 from services.adapters.dataset.formats import Intrinsics, Recording
 from services.adapters.dataset.frames import DatasetFrames
-from tests.rosbag.test_dataset import REAL, needs_real
+from tests.real import REAL, needs_real
 
 
 def _frames(n: int, drift: Drift) -> DatasetFrames:
