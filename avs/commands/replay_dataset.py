@@ -8,6 +8,10 @@ camera-intrinsics.txt) and plain folders of colour and depth images (--intrinsic
 frames (the floor, table tops) and keeps the dataset's own frame where its z is up already;
 ``given`` keeps the dataset's frame. What it chose is printed and written to --up-file.
 
+--drift MM,DEG gives the poses an odometry-like drift, to try view registration on them: the
+k-th played frame's pose is turned by k·DEG degrees of yaw about the vertical through the first
+frame's camera and moved k·MM millimetres along the world's +x (after --up).
+
   avs up --services perception,scene_memory &
   avs replay-dataset ../shared/data/real/redkitchen-a --up auto
 """
@@ -45,6 +49,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "default), or the dataset's frame as it is (given)")  # fmt: skip
     parser.add_argument("--up-file", type=Path, default=None, metavar="FILE",
                         help="write the chosen rotation, floor and planes as JSON")  # fmt: skip
+    parser.add_argument("--drift", type=_drift, default=None, metavar="MM,DEG",
+                        help="add k·MM mm along +x and k·DEG° of yaw (about the first camera's "
+                        "vertical) to the k-th frame's pose: an odometry-like drift")  # fmt: skip
     parser.add_argument("--pose", type=float, nargs=6, default=None,
                         metavar=("X", "Y", "Z", "ROLL", "PITCH", "YAW"),
                         help="the camera body's fixed pose where the dataset has no poses "
@@ -62,6 +69,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     add_transport_arguments(parser)
     parser.set_defaults(func=_replay)
+
+
+def _drift(text: str):
+    from services.adapters.dataset.drift import Drift
+
+    try:
+        return Drift.parse(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def _intrinsics(text: str | None):
@@ -92,6 +108,7 @@ def prepare(args: argparse.Namespace):
         T_fixed=fixed_camera_pose(x, y, z, math.radians(roll), math.radians(pitch),
                                   math.radians(yaw)),
         start=args.start, every=args.every or 1, limit=args.limit, colour=not args.no_colour,
+        drift=args.drift,
     )  # fmt: skip
     up = None
     if args.up == "auto":
@@ -111,7 +128,8 @@ def _replay(args: argparse.Namespace) -> int:
         raise SystemExit(f"avs replay-dataset: {e}") from None
     rec = frames.recording
     print(f"replay-dataset: {args.root} ({rec.format}): {len(frames.indices())} of {len(rec)} "
-          f"frames, {'poses from the dataset' if rec.poses is not None else 'a fixed pose'}",
+          f"frames, {'poses from the dataset' if rec.poses is not None else 'a fixed pose'}"
+          + (f", drift {args.drift.mm:g} mm and {args.drift.deg:g}° a frame" if args.drift else ""),
           file=sys.stderr)  # fmt: skip
     if up is not None:
         print(f"replay-dataset: up: {up.detail}", file=sys.stderr)

@@ -1,6 +1,7 @@
 """A recording's frames as RgbdFrames: images decoded, depth in metres (holes 0), the pose the
 dataset gives moved by ``T_up`` (the world turned so that z is up and the floor at z = 0:
-``gravity.py``), or a fixed pose where the dataset has none."""
+``gravity.py``), or a fixed pose where the dataset has none; with ``drift``, given an
+odometry-like drift after that (``drift.py``)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import numpy as np
 from PIL import Image
 
 from schemas import CameraIntrinsics, RgbdFrame
+from services.adapters.dataset.drift import Drift, drifted
 from services.adapters.dataset.formats import DatasetError, Recording
 
 
@@ -57,6 +59,8 @@ class DatasetFrames:
     every: int = 1
     limit: int = 0
     colour: bool = True
+    #: an odometry-like drift given to the k-th played frame's pose (None: the poses as they are)
+    drift: Drift | None = None
 
     def indices(self) -> list[int]:
         r = self.recording
@@ -66,9 +70,19 @@ class DatasetFrames:
         return chosen[: self.limit] if self.limit else chosen
 
     def pose(self, i: int) -> np.ndarray:
+        """Frame ``i``'s pose in the published world (z up), without drift."""
         r = self.recording
         T = r.poses[i] if r.poses is not None else self.T_fixed
         return self.T_up @ T
+
+    def published_pose(self, i: int, seq: int) -> np.ndarray:
+        """What frame ``i``, played as the ``seq``-th, carries: its pose with ``seq`` frames of
+        drift, turned about the first played camera's position (``drift.py``)."""
+        T = self.pose(i)
+        if self.drift is None or seq == 0:
+            return T
+        pivot = self.pose(self.indices()[0])[:3, 3]
+        return drifted(T, seq, self.drift, pivot)
 
     def frame(self, i: int, seq: int) -> RgbdFrame:
         r = self.recording
@@ -93,7 +107,7 @@ class DatasetFrames:
             intrinsics=CameraIntrinsics(width=w, height=h, fx=k.fx, fy=k.fy, cx=k.cx, cy=k.cy),
             rgb=rgb,
             depth=depth,
-            T_world_camera=self.pose(i),
+            T_world_camera=self.published_pose(i, seq),
         )
 
     def __iter__(self) -> Iterator[RgbdFrame]:

@@ -1,0 +1,405 @@
+"""Real RGB-D recordings through the real perception and scene memory (issue 42, item 4).
+
+For every recording in ``--data`` (default ``AVS_REAL_DATA``, else ``../shared/data/real``
+beside the checkout: see its README for what each holds and where it comes from), on a
+loopback Zenoh router in this process (multicast off) with perception and the scene memory as
+processes, each with its defaults except a fresh data directory and a queue that holds the
+whole recording (so that every frame is perceived, however slow):
+
+- **model** run: ``avs replay-dataset DIR --up auto`` as a user plays it (the reference poses,
+  registration off). Per recording: frames played, observations the memory received (on
+  ``perception/observation``), perception's own time per frame (the observations'
+  ``timings_ms["total"]``, median), the fused primitives by kind (the memory's ``memory/scene``
+  at the end), the heights of the large level planes in it (normal within 10° of z, longest
+  side ≥ 0.3 m: the floor, table tops), and the share of the fused primitives marked unstable
+  (``SceneModel.unstable_ids``);
+- **drift** run, where the recording has poses: the same with ``--drift 0.5,0.02`` (the k-th
+  frame's pose moved k·0.5 mm along +x and turned k·0.02° of yaw about the first camera's
+  vertical: ``services/adapters/dataset/drift.py``) and the memory's view registration on
+  (``AVS_SCENE_MEMORY_REGISTRATION=true``, its other settings at their defaults: every 0.5 s
+  of the recording's stamps). The camera pose the memory holds for a frame is its
+  ``memory/pose_correction`` (``T_world_odom``, the last accepted correction) times the pose
+  the frame carried; its error is taken against the reference pose (turned by the same
+  ``T_up``), at every frame the memory integrated and at the last frame played, next to the
+  error without registration (the full drift).
+
+Recordings are played at ``--rate`` of their own timing (default 0.5: the scene memory takes
+every depth frame it can and drops the ones that came while it was busy, newest first, as it
+does live). Progress on stderr; ``OUT/real_data.json`` holds every figure and per frame pose
+error, ``OUT/real_data_<recording>.png`` the pose error per frame with and without
+registration. One line per recording:
+
+recording=<name> frames=<n> observations=<n> perception_ms=<median> primitives=<n>
+plane=<n> cylinder=<n> sphere=<n> box=<n> level_planes_m=<h>x<n>,… unstable_share=<x>
+[pose_error_mm=<x> pose_error_deg=<x> drift_error_mm=<x> drift_error_deg=<x> mapped=<n>
+registered=<n> refused=<n> reference_offset_mm_median=<x> reference_offset_mm_max=<x>]
+
+``level_planes_m``: the level planes' heights in runs 3 cm wide, each as its median and how many
+fused planes it holds (a table top fused as one plane is ``0.72x1``). ``mapped``: the frames the
+memory integrated (its keyframe policy skips a camera that moved < 3 cm and turned < 3°: a
+static camera is integrated once), ``registered``: of them, those registration placed.
+``reference_offset_mm_*``: in this process, every 3rd frame at its *reference* pose registered
+against a map of the frames before it at theirs, how far registration moves it (median, max):
+about 0 where depth and reference agree; the target needs it well under 10.
+
+Target (issue 42): with the drift, pose_error_mm ≤ 10 on ``redkitchen-a``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import zenoh  # noqa: E402
+
+from avs.router import open_router  # noqa: E402
+from benchmarks._loopback import client_config, free_endpoint, stop  # noqa: E402
+from schemas import Keys, PoseCorrection, SceneModel, SceneObservation, decode  # noqa: E402
+from services.adapters.dataset.drift import Drift  # noqa: E402
+from services.adapters.dataset.formats import DatasetError, read  # noqa: E402
+from services.adapters.dataset.frames import DatasetFrames  # noqa: E402
+from services.common.poses import pose_difference  # noqa: E402
+from services.scene_memory.config import SceneMemorySettings  # noqa: E402
+from services.scene_memory.memory import MemoryConfig  # noqa: E402
+from services.scene_memory.registration import (  # noqa: E402
+    RegistrationConfig,
+    RegistrationMap,
+    camera_points,
+    register,
+)
+
+CAMERA = "head_rgbd"
+#: the issue's drift: 0.5 mm and 0.02° of yaw added each frame
+DRIFT = Drift(0.5, 0.02)
+#: a level plane: normal within this of z (°), longest side at least this (m)
+LEVEL_DEG, LEVEL_SIDE = 10.0, 0.3
+#: s without a new observation, correction or model after the replay before a run is over
+QUIET_S = 8.0
+
+
+def default_data() -> Path:
+    return Path(os.environ.get("AVS_REAL_DATA", ROOT.parent / "shared" / "data" / "real"))
+
+
+def recordings(data: Path) -> list[Path]:
+    """The folders of ``data`` that ``avs replay-dataset`` can read, by name."""
+    out = []
+    for d in sorted(p for p in data.iterdir() if p.is_dir()):
+        try:
+            read(d)
+        except DatasetError:
+            continue
+        out.append(d)
+    return out
+
+
+@dataclass
+class Received:
+    """What the run's client heard, from Zenoh's callbacks."""
+
+    lock: threading.Lock = field(default_factory=threading.Lock)
+    observations: list[tuple[int, float]] = field(default_factory=list)  # (frame_seq, ms)
+    corrections: list[PoseCorrection] = field(default_factory=list)
+    models: int = 0
+    last: float = field(default_factory=time.monotonic)  # the last arrival, monotonic
+
+    def note(self) -> None:
+        self.last = time.monotonic()
+
+
+def _services(endpoint: str, data_dir: Path, registration: bool, frames: int, log) -> list:
+    env = dict(
+        os.environ, AVS_MODE="client", AVS_CONNECT=endpoint, AVS_MULTICAST="false",
+        AVS_LOG_LEVEL="WARNING", PYTHONPATH=str(ROOT),
+        AVS_PERCEPTION_QUEUE=str(max(frames, 2)),
+        AVS_SCENE_MEMORY_DATA_DIR=str(data_dir),
+        AVS_SCENE_MEMORY_REGISTRATION="true" if registration else "false",
+    )  # fmt: skip
+    return [
+        subprocess.Popen(
+            [sys.executable, "-m", f"services.{name}", "--instance", f"real-{name}"],
+            env=env,
+            cwd=ROOT,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+        for name in ("perception", "scene_memory")
+    ]
+
+
+def _wait_alive(session: zenoh.Session, keys: Keys, procs: list, timeout: float = 180) -> None:
+    wanted = {keys.alive(n, f"real-{n}") for n in ("perception", "scene_memory")}
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        live = {str(r.ok.key_expr) for r in session.liveliness().get(keys.alive()) if r.ok}
+        if wanted <= live:
+            return
+        if any(p.poll() is not None for p in procs):
+            raise RuntimeError("a service exited before it was up (see its log in --out)")
+        time.sleep(0.3)
+    raise RuntimeError(f"services not up within {timeout:.0f} s")
+
+
+def level_planes(model: SceneModel) -> list[float]:
+    """Heights (m) of the model's large level planes, lowest first."""
+    cos = math.cos(math.radians(LEVEL_DEG))
+    out = []
+    for p in model.primitives:
+        if p.kind != "plane" or abs(float(p.model.normal[2])) < cos:
+            continue
+        if float(np.max(p.obb.extent)) < LEVEL_SIDE:
+            continue
+        out.append(round(float(p.obb.center[2]), 3))
+    return sorted(out)
+
+
+def grouped(heights: list[float], within: float = 0.03) -> list[tuple[float, int]]:
+    """Sorted heights in runs no wider than ``within`` (m): (the run's median, its count)."""
+    runs: list[list[float]] = []
+    for h in sorted(heights):
+        if runs and h - runs[-1][0] <= within:
+            runs[-1].append(h)
+        else:
+            runs.append([h])
+    return [(round(float(np.median(r)), 3), len(r)) for r in runs]
+
+
+def model_figures(model: SceneModel) -> dict:
+    kinds = Counter(p.kind for p in model.primitives)
+    n = len(model.primitives)
+    return {
+        "primitives": n,
+        **{k: kinds.get(k, 0) for k in ("plane", "cylinder", "sphere", "box")},
+        "level_planes_m": level_planes(model),
+        "unstable_share": round(len(model.unstable_ids) / n, 3) if n else 0.0,
+    }
+
+
+def pose_errors(frames: DatasetFrames, corrections: list[PoseCorrection]) -> dict:
+    """Per played frame, the error of the pose the memory holds (its last correction before
+    or at the frame, times the pose the frame carried) and of the pose alone (the drift)."""
+    chosen = frames.indices()
+    by_seq = sorted(corrections, key=lambda c: c.frame_seq)
+    T_corr, j, rows = np.eye(4), 0, []
+    for seq, i in enumerate(chosen):
+        while j < len(by_seq) and by_seq[j].frame_seq <= seq:
+            T_corr = by_seq[j].T_world_odom
+            j += 1
+        truth, carried = frames.pose(i), frames.published_pose(i, seq)
+        e_reg = pose_difference(truth, T_corr @ carried)
+        e_drift = pose_difference(truth, carried)
+        rows.append((seq, e_reg[0] * 1e3, e_reg[1], e_drift[0] * 1e3, e_drift[1]))
+    last = rows[-1]
+    return {
+        "pose_error_mm": round(last[1], 1), "pose_error_deg": round(last[2], 2),
+        "drift_error_mm": round(last[3], 1), "drift_error_deg": round(last[4], 2),
+        "mapped": len(corrections),
+        "registered": sum(c.accepted for c in corrections[1:]),
+        "refused": sum(not c.accepted and c.reason != "not_due" for c in corrections),
+        "reasons": dict(Counter(c.reason for c in corrections if not c.accepted)),
+        "per_frame": [[round(v, 2) for v in r] for r in rows],
+    }  # fmt: skip
+
+
+def reference_offsets(frames: DatasetFrames, every: int = 3) -> dict:
+    """What the registration makes of the reference poses themselves, in this process: every
+    ``every``-th frame, at its reference pose, registered (the memory's settings) against a map
+    of the frames before it at theirs; how far registration moves it (mm). Where the depth and
+    the reference poses agree this is about 0, and it bounds from below what registration can
+    do against drift measured from the reference."""
+    c, m = RegistrationConfig(), MemoryConfig()
+    depth_max = SceneMemorySettings.model_fields["max_range"].default
+    target, moved = RegistrationMap(c), []
+    for seq, i in enumerate(frames.indices()):
+        f = frames.frame(i, seq)
+        T, K = frames.pose(i), f.intrinsics
+        points = camera_points(f.depth, K, m.depth_min, depth_max)
+        if seq and seq % every == 0:
+            r = register(points, T, target, c)
+            if r.accepted:
+                moved.append(pose_difference(T, r.T_world_camera)[0] * 1e3)
+        target.add(points @ T[:3, :3].T + T[:3, 3])
+    return {
+        "reference_offset_mm_median": round(float(np.median(moved)), 1) if moved else math.nan,
+        "reference_offset_mm_max": round(float(np.max(moved)), 1) if moved else math.nan,
+        "reference_offsets_mm": [round(v, 1) for v in moved],
+    }
+
+
+def run_recording(
+    root: Path,
+    out: Path,
+    *,
+    drift: Drift | None = None,
+    registration: bool = False,
+    rate: float = 0.5,
+    every: int = 1,
+    limit: int = 0,
+    tag: str = "model",
+) -> dict:
+    """Play ``root`` into a fresh perception and scene memory; what they made of it."""
+    keys = Keys()
+    frames_total = len(DatasetFrames(read(root), every=every, limit=limit).indices())
+    endpoint = free_endpoint()
+    router = open_router([endpoint])
+    got = Received()
+    up_file = out / f"up_{root.name}_{tag}.json"
+    log = open(out / f"services_{root.name}_{tag}.log", "w")  # noqa: SIM115
+    with tempfile.TemporaryDirectory(prefix="avs-real-") as data_dir:
+        procs = _services(endpoint, Path(data_dir), registration, frames_total, log)
+        try:
+            with zenoh.open(client_config(endpoint)) as session:
+
+                def on_observation(sample: zenoh.Sample) -> None:
+                    o = decode(sample.payload.to_bytes(), SceneObservation)
+                    with got.lock:
+                        got.observations.append((o.frame_seq, o.timings_ms.get("total", 0.0)))
+                        got.note()
+
+                def on_correction(sample: zenoh.Sample) -> None:
+                    c = decode(sample.payload.to_bytes(), PoseCorrection)
+                    with got.lock:
+                        got.corrections.append(c)
+                        got.note()
+
+                def on_model(_sample: zenoh.Sample) -> None:
+                    with got.lock:
+                        got.models += 1
+                        got.note()
+
+                subs = [
+                    session.declare_subscriber(keys.observation(), on_observation),
+                    session.declare_subscriber(keys.pose_correction(), on_correction),
+                    session.declare_subscriber(keys.scene(), on_model),
+                ]
+                _wait_alive(session, keys, procs)
+                command = [
+                    sys.executable, "-m", "avs.cli", "replay-dataset", str(root), "--up", "auto",
+                    "--up-file", str(up_file), "--rate", str(rate), "--every", str(every),
+                    "--limit", str(limit), "--camera", CAMERA, "--connect", endpoint,
+                ]  # fmt: skip
+                if drift is not None:
+                    command += ["--drift", f"{drift.mm},{drift.deg}"]
+                env = dict(os.environ, AVS_MODE="client", AVS_MULTICAST="false",
+                           PYTHONPATH=str(ROOT))  # fmt: skip
+                subprocess.run(command, cwd=ROOT, env=env, check=True, timeout=1800)
+                # the services finish what they were sent: nothing new for QUIET_S
+                while time.monotonic() - got.last < QUIET_S:
+                    with got.lock:
+                        if len(got.observations) >= frames_total and got.models:
+                            break
+                    time.sleep(0.2)
+                time.sleep(1.0)  # the model of the last observations, the last correction
+                replies = list(session.get(keys.scene(), timeout=30.0))
+                model = decode(replies[0].ok.payload.to_bytes(), SceneModel)
+                for s in subs:
+                    s.undeclare()
+        finally:
+            stop(procs)
+            router.close()
+            log.close()
+    with got.lock:
+        observations, corrections = list(got.observations), list(got.corrections)
+    figures = {
+        "frames": frames_total,
+        "observations": len(observations),
+        "perception_ms": round(float(np.median([ms for _, ms in observations])), 1)
+        if observations
+        else math.nan,
+        **model_figures(model),
+    }
+    if drift is not None and read(root).poses is not None:
+        frames = DatasetFrames(read(root), every=every, limit=limit, drift=drift)
+        frames.T_up = np.array(json.loads(up_file.read_text())["T_up"])
+        figures |= pose_errors(frames, corrections)
+        figures |= reference_offsets(frames)
+    return figures
+
+
+def line(name: str, model: dict, drift: dict | None) -> str:
+    keys = ("frames", "observations", "perception_ms", "primitives", "plane", "cylinder",
+            "sphere", "box")  # fmt: skip
+    parts = [f"recording={name}", *(f"{k}={model[k]}" for k in keys)]
+    levels = grouped(model["level_planes_m"])
+    parts.append("level_planes_m=" + (",".join(f"{h:.2f}x{n}" for h, n in levels) or "-"))
+    parts.append(f"unstable_share={model['unstable_share']}")
+    if drift is not None and "pose_error_mm" in drift:
+        for k in ("pose_error_mm", "pose_error_deg", "drift_error_mm", "drift_error_deg",
+                  "mapped", "registered", "refused", "reference_offset_mm_median",
+                  "reference_offset_mm_max"):  # fmt: skip
+            parts.append(f"{k}={drift[k]}")
+    return " ".join(parts)
+
+
+def plot(name: str, drift: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = np.array(drift["per_frame"])
+    fig, ax = plt.subplots(figsize=(6, 3.2))
+    ax.plot(rows[:, 0], rows[:, 3], label="without registration (the drift)")
+    ax.plot(rows[:, 0], rows[:, 1], label="with registration")
+    ax.axhline(10, color="grey", lw=0.8, ls="--", label="target 10 mm")
+    ax.set_xlabel("frame")
+    ax.set_ylabel("camera position error, mm")
+    ax.set_title(f"{name}: drift {DRIFT.mm} mm, {DRIFT.deg}° a frame")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=default_data(),
+                        help="a folder of recordings (default AVS_REAL_DATA, else "
+                        "../shared/data/real)")  # fmt: skip
+    parser.add_argument("--out", type=Path, default=ROOT / "runs" / "real_data")
+    parser.add_argument("--rate", type=float, default=0.5, help="of the recordings' timing")
+    parser.add_argument("--limit", type=int, default=0, help="frames per recording (0: all)")
+    parser.add_argument("--only", nargs="*", default=None, help="these recordings (names)")
+    args = parser.parse_args()
+    if not args.data.is_dir():
+        raise SystemExit(f"real_data: no recordings at {args.data} (see --data)")
+    args.out.mkdir(parents=True, exist_ok=True)
+    results, lines = {}, []
+    for root in recordings(args.data):
+        if args.only and root.name not in args.only:
+            continue
+        print(f"real_data: {root.name}: model run", file=sys.stderr, flush=True)
+        model = run_recording(root, args.out, rate=args.rate, limit=args.limit)
+        drift = None
+        if read(root).poses is not None:
+            print(f"real_data: {root.name}: drift run (registration on)", file=sys.stderr,
+                  flush=True)  # fmt: skip
+            drift = run_recording(root, args.out, drift=DRIFT, registration=True,
+                                  rate=args.rate, limit=args.limit, tag="drift")  # fmt: skip
+            plot(root.name, drift, args.out / f"real_data_{root.name}.png")
+        results[root.name] = {"model": model, "drift": drift}
+        lines.append(line(root.name, model, drift))
+        print(lines[-1], flush=True)
+    record = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "data": str(args.data),
+              "rate": args.rate, "drift": [DRIFT.mm, DRIFT.deg], "recordings": results}  # fmt: skip
+    (args.out / "real_data.json").write_text(json.dumps(record, indent=1))
+    print(f"real_data: wrote {args.out / 'real_data.json'}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,106 @@
+"""``benchmarks/real_data.py``: its bookkeeping (the pose the memory holds per frame, the level
+planes of a model), and its core on the first frames of the real Kinect kitchen: replayed with
+drift by ``avs replay-dataset`` into a real perception and scene memory (processes, over Zenoh)
+with view registration on.
+
+The recordings are read where they are (``../shared/data/real``, or ``AVS_REAL_DATA``), never
+copied here; without them the test that needs them is skipped, saying where they come from."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks.real_data import DRIFT, grouped, level_planes, pose_errors, run_recording
+from schemas import Obb, PlaneModel, PoseCorrection, Primitive, SceneModel
+from services.adapters.dataset.drift import Drift, drift_transform
+from services.adapters.dataset.formats import Intrinsics, Recording
+from services.adapters.dataset.frames import DatasetFrames
+from tests.real import REAL, needs_real
+
+
+def _frames(n: int, drift: Drift) -> DatasetFrames:
+    """``n`` frames 0.1 m apart along y, looking the same way, no images."""
+    poses = []
+    for k in range(n):
+        T = np.eye(4)
+        T[:3, 3] = (0.0, 0.1 * k, 1.2)
+        poses.append(T)
+    rec = Recording("tum", Path("."), [0.1 * k for k in range(n)], [], [], poses,
+                    Intrinsics(0, 0, 1, 1, 0, 0), 1.0)  # fmt: skip
+    return DatasetFrames(rec, drift=drift)
+
+
+def _correction(seq: int, T: np.ndarray, accepted: bool = True, reason: str = "") -> PoseCorrection:
+    return PoseCorrection(seq=seq, stamp=0.0, T_world_odom=T, camera="head_rgbd",
+                          frame_seq=seq, accepted=accepted, reason=reason)  # fmt: skip
+
+
+def test_the_pose_the_memory_holds_is_its_last_correction_times_the_carried_pose():
+    """Frame 4's correction undoes its drift exactly: no error there; frames 5-6 carry it and
+    err by one and two more frames of drift; before it, the full drift."""
+    d = Drift(2.0, 0.0)
+    frames = _frames(7, d)
+    pivot = frames.pose(0)[:3, 3]
+    corrections = [_correction(0, np.eye(4)), _correction(2, np.eye(4), False, "not_due"),
+                   _correction(4, np.linalg.inv(drift_transform(4, d, pivot)))]  # fmt: skip
+    got = pose_errors(frames, corrections)
+    errors = [row[1] for row in got["per_frame"]]
+    drift = [row[3] for row in got["per_frame"]]
+    assert drift == pytest.approx([0, 2, 4, 6, 8, 10, 12], abs=1e-9)
+    assert errors == pytest.approx([0, 2, 4, 6, 0, 2, 4], abs=1e-9)
+    assert (got["pose_error_mm"], got["drift_error_mm"]) == (4.0, 12.0)
+    assert (got["mapped"], got["registered"], got["refused"]) == (3, 1, 0)
+    assert got["reasons"] == {"not_due": 1}
+
+
+def test_level_planes_are_the_large_level_ones():
+    def plane(i: int, normal, z: float, side: float) -> Primitive:
+        n = np.asarray(normal, float) / np.linalg.norm(normal)
+        obb = Obb(center=np.array([0.0, 0.0, z]), rotation=np.eye(3),
+                  extent=np.array([side, side, 0.01]))  # fmt: skip
+        return Primitive(id=i, model=PlaneModel(normal=n, d=-z * n[2]), obb=obb, inlier_count=10,
+                         inliers=np.zeros((0, 3), np.float32))  # fmt: skip
+
+    tilt = math.tan(math.radians(15))
+    model = SceneModel(seq=0, stamp=0.0, model_version=1, n_views=1, fusion="sg", primitives=[
+        plane(0, (0, 0, 1), 0.72, 1.0), plane(1, (0, 0, 1), 0.0, 3.0),
+        plane(2, (0, 0, 1), 0.45, 0.2),  # too small
+        plane(3, (tilt, 0, 1), 0.9, 1.0),  # 15° off level
+        plane(4, (1, 0, 0), 1.0, 1.0),  # a wall
+    ])  # fmt: skip
+    assert level_planes(model) == [0.0, 0.72]
+    assert grouped([0.0, 0.01, 0.02, 0.72, 0.44, 0.035, 0.74]) == [
+        (0.01, 3),
+        (0.035, 1),
+        (0.44, 1),
+        (0.73, 2),
+    ]
+
+
+@needs_real
+@pytest.mark.slow
+def test_the_kitchen_replayed_with_drift_into_the_real_services(tmp_path):
+    """12 frames (2 s) of redkitchen-a with 0.5 mm and 0.02° of drift a frame. Every frame is
+    perceived and reaches the memory, whose model holds the floor (z = 0) and the table top
+    (0.72 m: the level planes ``--up auto`` finds, tests/rosbag/test_dataset.py). Registration
+    runs (every 0.5 s of the recording) and is accepted; on real Kinect depth it does not yet
+    undo the drift (issue 42: 13.7 mm from the reference at frame 11 against 5.3 mm of drift,
+    2026-12-05): the bound here only catches it getting grossly worse."""
+    got = run_recording(REAL / "redkitchen-a", tmp_path, drift=DRIFT, registration=True,
+                        rate=1.0, limit=12, tag="test")  # fmt: skip
+    assert got["frames"] == got["observations"] == 12
+    assert 0 < got["perception_ms"] < 2000
+    assert got["primitives"] > 10 and got["plane"] > 0
+    levels = got["level_planes_m"]
+    assert any(abs(h) < 0.02 for h in levels) and any(0.70 < h < 0.75 for h in levels), levels
+    assert 0.0 <= got["unstable_share"] <= 1.0
+    # the drift the frames carried: 11 frames of 0.02° of yaw, ~0.5 mm a frame
+    assert got["drift_error_deg"] == pytest.approx(0.22, abs=0.005)
+    assert 4.0 < got["drift_error_mm"] < 7.0
+    assert got["registered"] >= 1 and got["refused"] == 0, got["reasons"]
+    assert len(got["per_frame"]) == 12
+    assert got["pose_error_mm"] < 30.0, got["per_frame"]
