@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from services.perception.cloud import organized_cloud
-from services.perception.primitives import ExtractionConfig, _flat_enough, extract_segment
+from services.perception.obb import plane_box
+from services.perception.primitives import Extracted, ExtractionConfig, _flat_enough
 from services.perception.segmentation import boundaries, segment
 from services.sim.noise import structured_light
 
@@ -59,18 +60,27 @@ def test_a_crease_at_2_5_m_still_cuts_with_the_window_grown():
     assert elsewhere.mean() < 0.02  # measured 0.010 (a 3-wide window: ~0.1 on a wall)
 
 
-def test_a_patch_as_thick_as_it_is_wide_is_no_plane():
-    rng = np.random.default_rng(2)
-    config = ExtractionConfig()
-    # clutter 10 cm across, 2.5 m away, within ±2 cm: the plane fit's band takes it all
-    depth = np.zeros((H, W), np.float32)
-    depth[200:236, 300:336] = 2.5 + rng.uniform(-0.02, 0.02, (36, 36))
-    cloud = _cloud(depth, 0.45)
-    pixels = np.flatnonzero(cloud.valid.ravel())
-    prims = extract_segment(cloud, pixels, 0, config, np.random.default_rng(0))
-    assert prims == []
-    loose = extract_segment(
-        cloud, pixels, 0, ExtractionConfig(flat_ratio=0.0), np.random.default_rng(0)
+def _patch(width: float, band: float, seed: int) -> Extracted:
+    """A "plane" facing the camera 2.5 m away: ``width`` square, its points spread over
+    ``band`` in depth, with a strip of a neighbouring face along one edge (as an inlier set
+    grown across a crease has)."""
+    rng = np.random.default_rng(seed)
+    n = 400
+    pts = np.column_stack(
+        [rng.uniform(0, width, n), rng.uniform(0, width, n), 2.5 + rng.uniform(-band, band, n) / 2]
     )
-    assert len(loose) >= 1 and loose[0].kind == "plane"
-    assert not _flat_enough(loose[0], config)
+    pts[:20, 2] = 2.5 + rng.uniform(0, 0.05, 20)  # the neighbour's strip: 5 cm deep
+    normal = np.array([0.0, 0.0, -1.0])
+    return Extracted("plane", np.arange(n), pts, plane_box(pts, normal), 0, normal=normal, d=2.5)
+
+
+def test_a_patch_as_thick_as_it_is_wide_is_no_plane():
+    config = ExtractionConfig()
+    # far clutter: 8 cm across, 4 cm thick (d(z) is 2.9 cm at 2.5 m)
+    assert not _flat_enough(_patch(0.08, 0.04, 0), config)
+    assert _flat_enough(_patch(0.08, 0.04, 0), ExtractionConfig(flat_ratio=0.0))
+    # a wall there: 0.5 m across, as thick
+    assert _flat_enough(_patch(0.5, 0.04, 1), config)
+    # a box's 3 cm side near the camera: mm thin, its OBB thickened by the neighbour's strip
+    side = _patch(0.03, 0.004, 2)
+    assert np.sort(side.box.extent)[0] > 0.025 and _flat_enough(side, config)
