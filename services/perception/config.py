@@ -18,6 +18,13 @@ class PerceptionSettings(ServiceSettings):
     depth_min: float = Field(0.35, ge=0, description="nearest depth used, m")
     depth_max: float = Field(3.0, gt=0, description="farthest depth used, m")
     stride: int = Field(2, ge=1, le=4, description="pixel stride of the organized cloud")
+    smooth_per_m2: float = Field(
+        0.0,
+        ge=0,
+        description="normals averaged over a window of half-width round(this · z²) grid steps "
+        "where that is wider than 1 (structured-light depth comes in steps growing with z²: "
+        "0.45 for a Kinect v1 at 2-3 m); 0: a 3-wide window everywhere",
+    )
     self_mask: bool = Field(
         True,
         description="mask the robot's own body (its MJCF posed by the joints a frame carries)",

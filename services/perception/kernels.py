@@ -10,33 +10,42 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def normals(points: np.ndarray, valid: np.ndarray, radius: int, centre: np.ndarray) -> np.ndarray:
+def normals(
+    points: np.ndarray, valid: np.ndarray, radius: np.ndarray, centre: np.ndarray
+) -> np.ndarray:
     """Unit normals (h, w, 3), facing ``centre``, as the cross product of the tangents of the
-    points averaged over (2·radius + 1)² windows; 0 where unknown."""
+    points averaged over (2·k + 1)² windows, k = ``radius`` (h, w) of the pixel (box sums from
+    integral images: any window costs the same); 0 where unknown."""
     h, w = valid.shape
+    S = np.zeros((h + 1, w + 1, 3), np.float64)
+    C = np.zeros((h + 1, w + 1), np.int64)
+    for r in range(h):
+        for c in range(w):
+            v = valid[r, c]
+            for j in range(3):
+                S[r + 1, c + 1, j] = (
+                    S[r, c + 1, j] + S[r + 1, c, j] - S[r, c, j] + (points[r, c, j] if v else 0.0)
+                )
+            C[r + 1, c + 1] = C[r, c + 1] + C[r + 1, c] - C[r, c] + (1 if v else 0)
     mean = np.zeros((h, w, 3), np.float32)
     have = np.zeros((h, w), np.bool_)
     for r in range(h):
         for c in range(w):
             if not valid[r, c]:
                 continue
-            sx = sy = sz = 0.0
-            n = 0
-            for rr in range(max(0, r - radius), min(h, r + radius + 1)):
-                for cc in range(max(0, c - radius), min(w, c + radius + 1)):
-                    if valid[rr, cc]:
-                        sx += points[rr, cc, 0]
-                        sy += points[rr, cc, 1]
-                        sz += points[rr, cc, 2]
-                        n += 1
-            mean[r, c, 0] = sx / n
-            mean[r, c, 1] = sy / n
-            mean[r, c, 2] = sz / n
+            k = radius[r, c]
+            r0, r1 = max(0, r - k), min(h, r + k + 1)
+            c0, c1 = max(0, c - k), min(w, c + k + 1)
+            n = C[r1, c1] - C[r0, c1] - C[r1, c0] + C[r0, c0]
+            for j in range(3):
+                mean[r, c, j] = (S[r1, c1, j] - S[r0, c1, j] - S[r1, c0, j] + S[r0, c0, j]) / n
             have[r, c] = True
     out = np.zeros((h, w, 3), np.float32)
-    k = max(1, radius)
-    for r in range(k, h - k):
-        for c in range(k, w - k):
+    for r in range(h):
+        for c in range(w):
+            k = max(1, radius[r, c])
+            if r < k or r >= h - k or c < k or c >= w - k:
+                continue
             if not (
                 have[r, c]
                 and have[r, c - k]
@@ -80,16 +89,20 @@ def boundaries(
     jump_abs: float,
     cos_crease: float,
     offset: int,
+    radius: np.ndarray,
 ) -> np.ndarray:
     """(h, w) bool: the far side of depth jumps between neighbours, and the middle of concave
-    creases between pixels ``offset`` apart (LCCP convexity: (n_i − n_j)·(p_i − p_j) < 0)."""
+    creases between pixels ``offset`` · k apart, k = the pixel's smoothing ``radius`` (its
+    normals are averaged over that much: a crease is judged beyond it) (LCCP convexity:
+    (n_i − n_j)·(p_i − p_j) < 0)."""
     h, w = valid.shape
     edge = np.zeros((h, w), np.bool_)
-    half = offset // 2
     for r in range(h):
         for c in range(w):
             if not valid[r, c]:
                 continue
+            step = offset * max(1, radius[r, c])
+            half = step // 2
             for dr, dc in ((0, 1), (1, 0)):
                 r2, c2 = r + dr, c + dc
                 if r2 < h and c2 < w and valid[r2, c2]:
@@ -102,7 +115,7 @@ def boundaries(
                             edge[r, c] = True
                         else:
                             edge[r2, c2] = True
-                r2, c2 = r + dr * offset, c + dc * offset
+                r2, c2 = r + dr * step, c + dc * step
                 if r2 >= h or c2 >= w or not valid[r2, c2]:
                     continue
                 ax, ay, az = normals[r, c, 0], normals[r, c, 1], normals[r, c, 2]
@@ -117,7 +130,7 @@ def boundaries(
                     + (az - bz) * (points[r, c, 2] - points[r2, c2, 2])
                 )
                 if convexity < 0:
-                    if offset > 1:
+                    if step > 1:
                         edge[r + dr * half, c + dc * half] = True
                     else:
                         edge[r, c] = True

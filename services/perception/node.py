@@ -58,6 +58,7 @@ class PerceptionNode:
                 depth_min=settings.depth_min,
                 depth_max=settings.depth_max,
                 stride=settings.stride,
+                smooth_per_m2=settings.smooth_per_m2,
                 seed=settings.seed,
             )
         )

@@ -46,6 +46,8 @@ class ExtractionConfig:
     box_touch: float = 0.02
     box_edge_ratio: float = 0.6  # faces of a box: lengths along the common edge agree this well
     face_fill: float = 0.4  # ... and each face's points cover this much of its rectangle
+    flat_ratio: float = 3.0  # a plane's OBB: middle extent ≥ this × its band (0: any) ...
+    flat_band: float = 0.015  # ... where its inliers' band is thicker than this (m)
 
 
 @dataclass
@@ -205,10 +207,30 @@ def extract_segment(
             prim = _make(
                 best, cluster, P[cluster].astype(np.float64), segment, cloud.viewer(cluster)
             )
+        if not _flat_enough(prim, config):
+            # a band of noisy depth, not a surface: what it held stays unexplained
+            remaining = remaining[~_member(remaining, cluster, cloud.size)]
+            continue
         out.append(prim)
         remaining = remaining[~_member(remaining, cluster, cloud.size)]
         parts += [p for p in _components(remaining, cloud) if len(p) >= config.tau_min]
     return out
+
+
+def _flat_enough(prim: Extracted, config: ExtractionConfig) -> bool:
+    """A plane is one where its inliers' band is thin beside its size: where the band (the
+    10th to 90th percentile of their distances to the plane) is thicker than ``flat_band``,
+    its OBB's middle extent must be ``flat_ratio`` times the band. Far from a
+    structured-light camera the inlier distance d(z) is a few cm (depth comes in 18 mm steps
+    at 2.5 m), and a patch of clutter a few cm across fits "a plane" at any tilt. (Near it
+    the band is mm thin, and a book's 3 cm side is a face; the OBB's own thickness is no
+    measure: a face's box takes in a strip of its neighbour along the edge.)"""
+    if prim.kind != "plane" or config.flat_ratio <= 0:
+        return True
+    lo, hi = np.percentile(prim.points @ prim.normal + prim.d, (10, 90))
+    band = hi - lo
+    middle = np.sort(prim.box.extent)[1]
+    return bool(band <= config.flat_band or middle >= config.flat_ratio * band)
 
 
 def _components(pixels: np.ndarray, cloud: Cloud) -> list[np.ndarray]:

@@ -42,6 +42,7 @@ def boundaries(
         jump_abs,
         float(np.cos(np.radians(crease_deg))),
         offset,
+        cloud.radius if cloud.radius is not None else np.ones(cloud.shape, np.int32),
     )
 
 

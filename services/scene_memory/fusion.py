@@ -83,6 +83,12 @@ class FusionConfig:
     floor_band: float = 0.04  # level planes this close to the lowest one are the floor ...
     floor_max: float = 0.3  # ... when it lies this low (the world's ground is z = 0)
     ground_area: float = 0.2  # level surfaces this large count as ground (stability)
+    #: ... and so do upright surfaces this tall and wide (m: a wall, a cabinet's front): the
+    #: room's structure, whose foot is often out of sight. A flat thing against one (a
+    #: poster, a shelf board, a brochure leaning on it) is held by it; an object is not
+    structure_height: float = 0.5
+    structure_width: float = 0.3
+    attached: float = 0.02  # m: a plane this close to a structure is against it
     rest_tolerance: float = 0.03  # a supported primitive reaches this far below its supporter
     #: negative evidence (``evidence.py``): a primitive that this many views in a row saw
     #: through (more than ``through_share`` of its points with evidence, at least
@@ -987,6 +993,8 @@ class Fusion:
             for i, m in self.prims.items()
             if shapes.level_area(m.primitive) >= self.config.ground_area
         }
+        structure = {i for i, m in self.prims.items() if self._structure(m.primitive, shapes)}
+        ground |= structure | self._attached(structure - ground)
         supports: dict[int, list[int]] = {}
         for a, b in support if support is not None else self.support(shapes):
             supports.setdefault(a, []).append(b)
@@ -997,6 +1005,37 @@ class Fusion:
                     stable.add(t)
                     queue.append(t)
         return root, sorted(set(self.prims) - stable)
+
+    def _structure(self, p: Primitive, shapes: _Shapes) -> bool:
+        """An upright plane or box ``structure_height`` tall and ``structure_width`` wide."""
+        c = self.config
+        if p.model.kind not in ("plane", "box"):
+            return False
+        if p.model.kind == "plane" and abs(p.model.normal[2]) > np.sin(np.radians(15)):
+            return False
+        lo, hi = shapes.z_range(p.obb)
+        R, e = p.obb.rotation, p.obb.extent
+        width = float(np.max(np.linalg.norm(R[:2], axis=0) * e))  # widest level extent
+        return hi - lo >= c.structure_height and width >= c.structure_width
+
+    def _attached(self, structure: set[int]) -> set[int]:
+        """The planes against a structure: ten of their points or more within ``attached`` of
+        its box (a board's edge along the wall; not a solid beside it: an object stands on
+        something)."""
+        c, out = self.config, set()
+        walls = [self.prims[i].primitive.obb for i in structure]
+        if not walls:
+            return out
+        for i, m in self.prims.items():
+            if i in structure or m.primitive.model.kind != "plane":
+                continue
+            for o in walls:
+                if not self._boxes.intersect(m.primitive.obb, o, c.attached):
+                    continue
+                if inlier(m.points, o, c.attached, self._boxes) * len(m.points) >= 10:
+                    out.add(i)
+                    break
+        return out
 
     @staticmethod
     def _level_area(p: Primitive) -> float:

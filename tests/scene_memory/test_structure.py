@@ -1,0 +1,42 @@
+"""Stability in a room: a wall whose foot is out of sight is structure, not a hint of missing
+data; a flat thing against it (a poster, a shelf board) is held by it; an object beside it
+still needs support from below."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from services.scene_memory.fusion import Fusion, FusionConfig
+from tests.scene_memory.builders import box, observation, plane
+from tests.scene_memory.test_evidence import facing_wall, wall
+
+
+def _unstable_kinds(fusion: Fusion) -> dict[str, list[str]]:
+    fusion_model = fusion.scene_model()
+    out: dict[str, list[str]] = {}
+    for p in fusion_model.primitives:
+        key = f"{p.model.kind}@{p.obb.center[2]:.2f}"
+        out.setdefault("unstable" if p.id in fusion_model.unstable_ids else "stable", []).append(
+            key
+        )
+    return out
+
+
+def test_a_wall_and_what_hangs_on_it_are_stable_an_object_beside_it_is_not():
+    T = facing_wall(2.0)
+    table = plane(0, (1.6, 2.6), (-0.5, 0.5), 0.72)  # the ground of the scene (ρ)
+    room = wall(1, (-1.0, 1.0), 3.0, (0.9, 2.0))  # its foot hidden behind a counter
+    poster = wall(2, (-0.3, 0.1), 2.99, (1.3, 1.7))  # 1 cm in front of it
+    shelf = plane(3, (2.75, 2.99), (0.2, 0.8), 1.2)  # a board against it
+    floating = box(4, (2.9, -0.6, 1.5), (0.1, 0.1, 0.1))  # touches the wall, nothing below
+    small = wall(5, (-0.9, -0.7), 2.5, (1.0, 1.2))  # a 0.2 m panel in mid-air
+    fusion = Fusion()
+    fusion.update(observation(0, [table, room, poster, shelf, floating, small], T=T))
+    assert len(fusion.prims) == 6
+    state = _unstable_kinds(fusion)
+    assert sorted(state["unstable"]) == ["box@1.50", "plane@1.10"], state
+    # without structure (the thesis's rule: a chain of support edges down to ρ): the wall,
+    # its poster and its board are unstable too
+    strict = Fusion(FusionConfig(structure_height=np.inf))
+    strict.update(observation(0, [table, room, poster, shelf, floating, small], T=T))
+    assert len(_unstable_kinds(strict)["unstable"]) == 5
