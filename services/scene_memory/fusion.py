@@ -98,6 +98,9 @@ class FusionConfig:
     through_points: int = 10
     through_margin: float = 0.02  # m beyond the depth noise (registration, a surface's thickness)
     through_cell: int = 16  # px: the grid a view's surfaces are compared in
+    #: a primitive of one view that this many later views saw the surface of without
+    #: matching it goes (0: never)
+    unconfirmed_views: int = 3
     mode: str = "sg"  # pc | sg | pc+sg
 
 
@@ -108,6 +111,7 @@ class MemoryPrimitive:
     points: np.ndarray  # (n, 3) float32 fused inliers
     views: int = 1
     seen_through: int = 0  # views in a row that saw through it since it was last matched
+    unconfirmed: int = 0  # views that saw its surface and matched nothing to it (views == 1)
 
 
 @dataclass
@@ -766,8 +770,11 @@ class Fusion:
     ) -> int:
         """Negative evidence (``evidence.py``): the memory primitives in view that this view
         did not match and saw through count it; ``decay_views`` in a row remove them (a
-        moved or gone object, a veil of flying pixels). A match resets the count. Returns
-        how many went."""
+        moved or gone object, a veil of flying pixels). A match resets the count. And a
+        primitive seen in one view only, whose surface ``unconfirmed_views`` later views
+        saw where it lies (not hidden, not through) without any of their primitives
+        matching it, was a segmentation of that view alone (noise, a sliver between two
+        surfaces): it goes too. Returns how many went."""
         c = self.config
         if c.decay_views <= 0:
             return 0
@@ -780,10 +787,15 @@ class Fusion:
                 continue
             depth = depth or ViewDepth(obs, c.through_cell)
             through, evidence = depth.seen_through(m.points, c.through_margin)
-            if evidence < c.through_points or through <= c.through_share * evidence:
+            if evidence < c.through_points:
                 continue
-            m.seen_through += 1
-            if m.seen_through >= c.decay_views:
+            if through > c.through_share * evidence:
+                m.seen_through += 1
+            elif m.views == 1 and c.unconfirmed_views > 0:
+                m.unconfirmed += 1
+            if m.seen_through >= c.decay_views or (
+                c.unconfirmed_views > 0 and m.unconfirmed >= c.unconfirmed_views
+            ):
                 self.prims.pop(m.id)
                 gone += 1
         return gone

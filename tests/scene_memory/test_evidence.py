@@ -115,3 +115,27 @@ def test_the_view_depth_holds_the_nearest_surface_of_each_cell():
     assert depth.seen_through(below, 0.02) == (0, 0)
     assert depth.seen_through(on, 0.02) == (0, 20)
     assert camera_above()[2, 3] == 2.6
+
+
+def test_a_primitive_of_one_view_that_later_views_do_not_reproduce_goes():
+    table = plane(0, (0.2, 1.6), (-0.6, 0.6), 0.72)
+    # a sliver one view segmented on the table top (its points on the table's surface)
+    sliver = box(1, (0.9, 0.0, 0.722), (0.12, 0.08, 0.004))
+    mug = box(2, (0.5, 0.3, 0.77), (0.08, 0.08, 0.1))  # an object every view sees
+    fusion = Fusion()
+    fusion.update(observation(0, [table, sliver, mug]))
+    assert len(fusion.prims) == 3
+    went = [fusion.update(observation(k, [table, mug])).decayed for k in (1, 2, 3)]
+    # three views saw the table where the sliver lay and matched nothing to it
+    assert went == [0, 0, 1] and len(fusion.prims) == 2
+    assert sorted(m.primitive.model.kind for m in fusion.prims.values()) == ["box", "plane"]
+    # off: it stays; seen in two views: it stays
+    cases = [
+        (FusionConfig(unconfirmed_views=0), [[table, sliver, mug]]),
+        (FusionConfig(), [[table, sliver, mug], [table, sliver, mug]]),
+    ]
+    for config, views in cases:
+        fusion = Fusion(config)
+        for k, prims in enumerate(views + [[table, mug]] * 4):
+            fusion.update(observation(k, prims))
+        assert len(fusion.prims) == 3
