@@ -65,6 +65,8 @@ REFERENCE_TABLES = (
     "| service | thesis | consumes | produces |",
     "| key | message | rate / kind |",
     "| script | ours | peer | like for like |",
+    # the real recordings' known facts: each row names the test or benchmark that checks it
+    "| recording | fact | found by | checked in |",
 )
 
 #: thesis Table 5.1 (ARMAR-III, grasping on the move): the decrease of the optical-flow error's
@@ -308,6 +310,18 @@ def render_generalization(stdout: str, out: Path) -> str:
 
     line = last_line(stdout)
     return f"`{line}`\n\n{markdown(_json(out / 'generalization.json')['rows'])}"
+
+
+def render_real_data(stdout: str, out: Path) -> str:
+    """benchmarks/real_data.py: its line per recording, each in a code span."""
+    lines = [
+        line.strip()
+        for line in stdout.replace("\r", "\n").split("\n")
+        if line.strip().startswith("recording=")
+    ]
+    if not lines or not all(re.fullmatch(r"(\S+=\S+)( \S+=\S+)*", line) for line in lines):
+        raise RenderError("no key=value line per recording")
+    return "\n\n".join(f"`{line}`" for line in lines)
 
 
 def render_live_explore(stdout: str, out: Path) -> str:
@@ -594,6 +608,7 @@ REGISTRY: dict[str, Figure] = {
             15,
             render_generalization,
         ),
+        Figure("real_data", "python benchmarks/real_data.py --out DIR", 6, render_real_data),
         Figure(
             "live_explore",
             "python benchmarks/live_explore.py --scenes 5 --out DIR",

@@ -82,6 +82,25 @@ def test_the_arm_that_moved_the_toy_leaves_no_phantoms():
     (fusion, kept) = _fused(frames, [FusionConfig(), FusionConfig(decay_views=0)])
     last = frames.frame(frames.indices()[-1], 0)
     with_decay, without = _phantoms(fusion, last), _phantoms(kept, last)
+    # what stays: the table top (0.719 m in base_link) and the grey bin on it, a box about
+    # 0.2 × 0.3 × 0.3 m whose centre the first frames put at (1.37, 0.24, 0.82)
+    prims = [m.primitive for m in fusion.prims.values()]
+    tops = [
+        p
+        for p in prims
+        if p.model.kind == "plane"
+        and abs(p.model.normal[2]) > 0.97
+        and abs(p.obb.center[2] - 0.719) < 0.02
+        and np.prod(np.sort(p.obb.extent)[1:]) > 0.3
+    ]
+    bins = [
+        p
+        for p in prims
+        if p.model.kind == "box"
+        and np.linalg.norm(p.obb.center - [1.37, 0.24, 0.82]) < 0.05
+        and np.all(np.sort(p.obb.extent) > 0.15)
+    ]
+    assert len(tops) >= 1 and len(bins) >= 1, (len(tops), len(bins))
     # measured: 29 without decay, 6 with it (the arm's latest poses, seen through once)
     assert without >= 20
     assert with_decay <= 8 and with_decay <= without / 3

@@ -40,3 +40,16 @@ def test_a_wall_and_what_hangs_on_it_are_stable_an_object_beside_it_is_not():
     strict = Fusion(FusionConfig(structure_height=np.inf))
     strict.update(observation(0, [table, room, poster, shelf, floating, small], T=T))
     assert len(_unstable_kinds(strict)["unstable"]) == 5
+
+
+def test_an_object_whose_bottom_lies_on_a_stable_top_rests_without_a_seen_edge():
+    table = plane(0, (0.2, 1.6), (-0.6, 0.6), 0.72)
+    on = box(1, (0.9, 0.0, 0.77), (0.08, 0.08, 0.1))  # bottom at 0.72: on the table
+    above = box(2, (0.5, 0.3, 0.87), (0.08, 0.08, 0.1))  # bottom at 0.82: 10 cm over it
+    beside = box(3, (1.8, 0.0, 0.77), (0.08, 0.08, 0.1))  # at the height, off its edge
+    fusion = Fusion()
+    fusion.update(observation(0, [table, on, above, beside]))  # no support edges observed
+    state = _unstable_kinds(fusion)
+    assert sorted(state["unstable"]) == ["box@0.77", "box@0.87"], state  # beside, above
+    on_it = [m for m in fusion.prims.values() if abs(m.primitive.obb.center[0] - 0.9) < 0.01]
+    assert on_it[0].id not in fusion.scene_model().unstable_ids
