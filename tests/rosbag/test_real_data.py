@@ -14,7 +14,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from benchmarks.real_data import DRIFT, grouped, level_planes, pose_errors, run_recording
+from benchmarks.real_data import (
+    DRIFT,
+    drift_residual,
+    grouped,
+    level_planes,
+    pose_errors,
+    run_recording,
+)
 from schemas import Obb, PlaneModel, PoseCorrection, Primitive, SceneModel
 from services.adapters.dataset.drift import Drift, drift_transform
 from services.adapters.dataset.formats import Intrinsics, Recording
@@ -55,6 +62,30 @@ def test_the_pose_the_memory_holds_is_its_last_correction_times_the_carried_pose
     assert (got["pose_error_mm"], got["drift_error_mm"]) == (4.0, 12.0)
     assert (got["mapped"], got["registered"], got["refused"]) == (3, 1, 0)
     assert got["reasons"] == {"not_due": 1}
+
+
+def test_the_drift_residual_compares_the_held_poses_frame_by_frame():
+    """A still run whose registration moved every frame 5 mm off its reference (the depth and
+    the reference disagree), and a drift run whose corrections land each frame on the still
+    run's pose except the last two frames (one and two frames of drift): pose_error is 5 mm
+    and more, the residual 0 until frame 4, then the drift since."""
+    d = Drift(2.0, 0.0)
+    off = np.eye(4)
+    off[1, 3] = 0.005  # registration's view of the reference: 5 mm along y
+    still = pose_errors(_frames(6, Drift(0.0, 0.0)), [_correction(0, off)])
+    frames = _frames(6, d)
+    pivot = frames.pose(0)[:3, 3]
+    undo = off @ np.linalg.inv(drift_transform(4, d, pivot))
+    drifted = pose_errors(frames, [_correction(0, off), _correction(4, undo)])
+    got = drift_residual(drifted, still)
+    assert got["drift_residual_per_frame_mm"] == pytest.approx([0, 2, 4, 6, 0, 2], abs=1e-6)
+    assert (got["drift_residual_mm"], got["drift_residual_mm_max"]) == (2.0, 6.0)
+    assert still["pose_error_mm"] == 5.0 and got["still_pose_error_mm"] == 5.0
+    assert drifted["pose_error_mm"] == pytest.approx(math.hypot(5, 2), abs=0.05)
+    assert got["same_frames"] == "no"  # frame 4 was integrated by one run only
+    same = pose_errors(_frames(6, Drift(0.0, 0.0)), [_correction(0, off), _correction(4, off)])
+    assert drift_residual(drifted, same)["same_frames"] == "yes"
+    assert drift_residual(drifted, same)["drift_residual_mm"] == 2.0
 
 
 def test_level_planes_are_the_large_level_ones():
