@@ -33,9 +33,10 @@ whole recording (so that every frame is perceived, however slow):
   on a Kinect v1 with its depth distortion that alone is ~1 cm). It is a fair comparison
   only where both runs integrated and registered the same frames: ``same_frames``.
 
-Recordings are played at ``--rate`` of their own timing (default 0.5: the scene memory takes
-every depth frame it can and drops the ones that came while it was busy, newest first, as it
-does live; at 0.5 it drops none of redkitchen-a's, ``same_frames`` says so). Progress on
+Recordings are played at ``--rate`` of their own timing (default 0.25: the scene memory takes
+every depth frame it can and drops the ones that came while it was busy, as it does live;
+integrating every frame at 0.5 it dropped 1-2 of redkitchen-a's 6 a second, different ones in
+each run, and the registrations fell on other frames; at 0.25 none: ``same_frames``). Progress on
 stderr; ``OUT/real_data.json`` holds every figure and per frame pose error,
 ``OUT/real_data_<recording>.png`` the pose error per frame with and without registration.
 One line per recording, and one per recording with poses and ``--dof``:
@@ -298,7 +299,7 @@ def run_recording(
     *,
     drift: Drift | None = None,
     registration: bool = False,
-    rate: float = 0.5,
+    rate: float = 0.25,
     every: int = 1,
     limit: int = 0,
     tag: str = "model",
@@ -436,7 +437,7 @@ def main() -> None:
                         help="a folder of recordings (default AVS_REAL_DATA, else "
                         "../shared/data/real)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "real_data")
-    parser.add_argument("--rate", type=float, default=0.5, help="of the recordings' timing")
+    parser.add_argument("--rate", type=float, default=0.25, help="of the recordings' timing")
     parser.add_argument("--limit", type=int, default=0, help="frames per recording (0: all)")
     parser.add_argument("--only", nargs="*", default=None, help="these recordings (names)")
     parser.add_argument("--dof", nargs="+", choices=("planar", "full"),
