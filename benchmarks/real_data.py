@@ -13,34 +13,54 @@ whole recording (so that every frame is perceived, however slow):
   at the end), the heights of the large level planes in it (normal within 10° of z, longest
   side ≥ 0.3 m: the floor, table tops), and the share of the fused primitives marked unstable
   (``SceneModel.unstable_ids``);
-- **drift** run, where the recording has poses: the same with ``--drift 0.5,0.02`` (the k-th
-  frame's pose moved k·0.5 mm along +x and turned k·0.02° of yaw about the first camera's
-  vertical: ``services/adapters/dataset/drift.py``) and the memory's view registration on
+- **drift** run, where the recording has poses, once per ``--dof`` (the registration's
+  unknowns, ``AVS_SCENE_MEMORY_REGISTRATION_DOF``: ``planar``, a ground platform's x, y and
+  yaw, or ``full``): the same with ``--drift 0.5,0.02`` (the k-th frame's pose moved k·0.5 mm
+  along +x and turned k·0.02° of yaw about the first camera's vertical:
+  ``services/adapters/dataset/drift.py``) and the memory's view registration on
   (``AVS_SCENE_MEMORY_REGISTRATION=true``, its other settings at their defaults: every 0.5 s
-  of the recording's stamps). The camera pose the memory holds for a frame is its
+  of the recording's stamps; but every frame integrated, no keyframe policy: it decides on the
+  drifted pose, and 0.5 mm can take a frame across its 3 cm, so the drifted and the still run
+  would integrate different frames). The camera pose the memory holds for a frame is its
   ``memory/pose_correction`` (``T_world_odom``, the last accepted correction) times the pose
   the frame carried; its error is taken against the reference pose (turned by the same
-  ``T_up``), at every frame the memory integrated and at the last frame played, next to the
-  error without registration (the full drift).
+  ``T_up``), at every frame played and at the last one, next to the error without
+  registration (the full drift);
+- **still** run, per ``--dof``: registration on, no drift: what registration makes of the
+  reference poses themselves. The drift run's held poses are compared with this run's, frame
+  by frame: ``drift_residual`` is how much of the drift registration failed to undo,
+  whatever the reference's own disagreement with the depth (which ``pose_error`` includes:
+  on a Kinect v1 with its depth distortion that alone is ~1 cm). It is a fair comparison
+  only where both runs integrated and registered the same frames: ``same_frames``.
 
-Recordings are played at ``--rate`` of their own timing (default 0.5: the scene memory takes
-every depth frame it can and drops the ones that came while it was busy, newest first, as it
-does live). Progress on stderr; ``OUT/real_data.json`` holds every figure and per frame pose
-error, ``OUT/real_data_<recording>.png`` the pose error per frame with and without
-registration. One line per recording:
+Recordings are played at ``--rate`` of their own timing (default 0.25: the scene memory takes
+every depth frame it can and drops the ones that came while it was busy, as it does live;
+integrating every frame at 0.5 it dropped 1-2 of redkitchen-a's 6 a second, different ones in
+each run, and the registrations fell on other frames; at 0.25 none: ``same_frames``). Progress on
+stderr; ``OUT/real_data.json`` holds every figure and per frame pose error,
+``OUT/real_data_<recording>.png`` the pose error per frame with and without registration.
+One line per recording, and one per recording with poses and ``--dof``:
 
 recording=<name> frames=<n> observations=<n> perception_ms=<median> primitives=<n>
 plane=<n> cylinder=<n> sphere=<n> box=<n> level_planes_m=<h>x<n>,… unstable_share=<x>
-[pose_error_mm=<x> pose_error_deg=<x> drift_error_mm=<x> drift_error_deg=<x> mapped=<n>
-registered=<n> refused=<n> reference_offset_mm_median=<x> reference_offset_mm_max=<x>]
+
+recording=<name> dof=<planar|full> pose_error_mm=<x> pose_error_deg=<x> drift_error_mm=<x>
+drift_error_deg=<x> drift_residual_mm=<x> drift_residual_deg=<x> drift_residual_mm_max=<x>
+still_pose_error_mm=<x> mapped=<n> registered=<n> refused=<n> still_mapped=<n>
+still_registered=<n> same_frames=<yes|no> reference_offset_mm_median=<x>
+reference_offset_mm_max=<x>
 
 ``level_planes_m``: the level planes' heights in runs 3 cm wide, each as its median and how many
 fused planes it holds (a table top fused as one plane is ``0.72x1``). ``mapped``: the frames the
-memory integrated (its keyframe policy skips a camera that moved < 3 cm and turned < 3°: a
-static camera is integrated once), ``registered``: of them, those registration placed.
+memory integrated (all of them unless it dropped some), ``registered``: of them, those
+registration placed, ``refused``: those it refused (the others were not due).
 ``reference_offset_mm_*``: in this process, every 3rd frame at its *reference* pose registered
 against a map of the frames before it at theirs, how far registration moves it (median, max):
 about 0 where depth and reference agree; the target needs it well under 10.
+``pose_error``, ``drift_residual``: at the last frame (``drift_residual_mm_max``: the largest
+over the frames); ``still_pose_error_mm``: the still run's at the last frame.
+``same_frames``: the two runs integrated the same frames, tried registration on the same and
+accepted the same ones (``mapped`` = ``frames``: none dropped).
 
 Target (issue 42): with the drift, pose_error_mm ≤ 10 on ``redkitchen-a``.
 """
@@ -122,14 +142,19 @@ class Received:
         self.last = time.monotonic()
 
 
-def _services(endpoint: str, data_dir: Path, registration: bool, frames: int, log) -> list:
+def _services(
+    endpoint: str, data_dir: Path, registration: bool, frames: int, log, dof: str = "planar"
+) -> list:
     env = dict(
         os.environ, AVS_MODE="client", AVS_CONNECT=endpoint, AVS_MULTICAST="false",
         AVS_LOG_LEVEL="WARNING", PYTHONPATH=str(ROOT),
         AVS_PERCEPTION_QUEUE=str(max(frames, 2)),
         AVS_SCENE_MEMORY_DATA_DIR=str(data_dir),
         AVS_SCENE_MEMORY_REGISTRATION="true" if registration else "false",
+        AVS_SCENE_MEMORY_REGISTRATION_DOF=dof,
     )  # fmt: skip
+    if registration:  # every frame integrated: the drifted and the still run, the same frames
+        env |= {"AVS_SCENE_MEMORY_KEYFRAME_MOVE": "0", "AVS_SCENE_MEMORY_KEYFRAME_TURN": "0"}
     return [
         subprocess.Popen(
             [sys.executable, "-m", f"services.{name}", "--instance", f"real-{name}"],
@@ -195,13 +220,14 @@ def pose_errors(frames: DatasetFrames, corrections: list[PoseCorrection]) -> dic
     or at the frame, times the pose the frame carried) and of the pose alone (the drift)."""
     chosen = frames.indices()
     by_seq = sorted(corrections, key=lambda c: c.frame_seq)
-    T_corr, j, rows = np.eye(4), 0, []
+    T_corr, j, rows, held = np.eye(4), 0, [], []
     for seq, i in enumerate(chosen):
         while j < len(by_seq) and by_seq[j].frame_seq <= seq:
             T_corr = by_seq[j].T_world_odom
             j += 1
         truth, carried = frames.pose(i), frames.published_pose(i, seq)
-        e_reg = pose_difference(truth, T_corr @ carried)
+        held.append(T_corr @ carried)
+        e_reg = pose_difference(truth, held[-1])
         e_drift = pose_difference(truth, carried)
         rows.append((seq, e_reg[0] * 1e3, e_reg[1], e_drift[0] * 1e3, e_drift[1]))
     last = rows[-1]
@@ -213,16 +239,42 @@ def pose_errors(frames: DatasetFrames, corrections: list[PoseCorrection]) -> dic
         "refused": sum(not c.accepted and c.reason != "not_due" for c in corrections),
         "reasons": dict(Counter(c.reason for c in corrections if not c.accepted)),
         "per_frame": [[round(v, 2) for v in r] for r in rows],
+        "held": [np.round(T, 7).tolist() for T in held],
+        "mapped_seqs": sorted(c.frame_seq for c in corrections),
+        "registered_seqs": sorted(c.frame_seq for c in corrections if c.accepted),
+        "tried_seqs": sorted(c.frame_seq for c in corrections if c.reason != "not_due"),
     }  # fmt: skip
 
 
-def reference_offsets(frames: DatasetFrames, every: int = 3) -> dict:
+def drift_residual(drifted: dict, still: dict) -> dict:
+    """How far the poses the memory holds with the drift are, frame by frame, from those it
+    holds for the same frames without (registration on in both; ``pose_errors``' figures):
+    the drift registration did not undo, apart from the reference's own disagreement with the
+    depth, which both share. At the last frame, and the largest (mm)."""
+    pairs = [
+        (np.array(a), np.array(b)) for a, b in zip(drifted["held"], still["held"], strict=True)
+    ]
+    d = [pose_difference(b, a) for a, b in pairs]
+    same = all(drifted[k] == still[k] for k in ("mapped_seqs", "registered_seqs", "tried_seqs"))
+    return {
+        "drift_residual_mm": round(d[-1][0] * 1e3, 1),
+        "drift_residual_deg": round(d[-1][1], 2),
+        "drift_residual_mm_max": round(max(m for m, _ in d) * 1e3, 1),
+        "drift_residual_per_frame_mm": [round(m * 1e3, 2) for m, _ in d],
+        "still_pose_error_mm": still["pose_error_mm"],
+        "still_mapped": still["mapped"],
+        "still_registered": still["registered"],
+        "same_frames": "yes" if same else "no",
+    }
+
+
+def reference_offsets(frames: DatasetFrames, every: int = 3, dof: str = "planar") -> dict:
     """What the registration makes of the reference poses themselves, in this process: every
     ``every``-th frame, at its reference pose, registered (the memory's settings) against a map
     of the frames before it at theirs; how far registration moves it (mm). Where the depth and
     the reference poses agree this is about 0, and it bounds from below what registration can
     do against drift measured from the reference."""
-    c, m = RegistrationConfig(), MemoryConfig()
+    c, m = RegistrationConfig(dof=dof), MemoryConfig()
     depth_max = SceneMemorySettings.model_fields["max_range"].default
     target, moved = RegistrationMap(c), []
     for seq, i in enumerate(frames.indices()):
@@ -247,12 +299,16 @@ def run_recording(
     *,
     drift: Drift | None = None,
     registration: bool = False,
-    rate: float = 0.5,
+    rate: float = 0.25,
     every: int = 1,
     limit: int = 0,
     tag: str = "model",
+    dof: str = "planar",
+    offsets: bool = True,
 ) -> dict:
-    """Play ``root`` into a fresh perception and scene memory; what they made of it."""
+    """Play ``root`` into a fresh perception and scene memory; what they made of it. With
+    registration on a recording with poses, the poses the memory held per frame (``drift``
+    None: none given), and with ``offsets`` the reference offsets (``reference_offsets``)."""
     keys = Keys()
     frames_total = len(DatasetFrames(read(root), every=every, limit=limit).indices())
     endpoint = free_endpoint()
@@ -261,7 +317,7 @@ def run_recording(
     up_file = out / f"up_{root.name}_{tag}.json"
     log = open(out / f"services_{root.name}_{tag}.log", "w")  # noqa: SIM115
     with tempfile.TemporaryDirectory(prefix="avs-real-") as data_dir:
-        procs = _services(endpoint, Path(data_dir), registration, frames_total, log)
+        procs = _services(endpoint, Path(data_dir), registration, frames_total, log, dof)
         try:
             with zenoh.open(client_config(endpoint)) as session:
 
@@ -323,39 +379,48 @@ def run_recording(
         else math.nan,
         **model_figures(model),
     }
-    if drift is not None and read(root).poses is not None:
+    if registration and read(root).poses is not None:
         frames = DatasetFrames(read(root), every=every, limit=limit, drift=drift)
         frames.T_up = np.array(json.loads(up_file.read_text())["T_up"])
-        figures |= pose_errors(frames, corrections)
-        figures |= reference_offsets(frames)
+        figures |= pose_errors(frames, corrections) | {"T_up": frames.T_up.tolist(), "dof": dof}
+        if offsets:
+            figures |= reference_offsets(frames, dof=dof)
     return figures
 
 
-def line(name: str, model: dict, drift: dict | None) -> str:
+def line(name: str, model: dict) -> str:
     keys = ("frames", "observations", "perception_ms", "primitives", "plane", "cylinder",
             "sphere", "box")  # fmt: skip
     parts = [f"recording={name}", *(f"{k}={model[k]}" for k in keys)]
     levels = grouped(model["level_planes_m"])
     parts.append("level_planes_m=" + (",".join(f"{h:.2f}x{n}" for h, n in levels) or "-"))
     parts.append(f"unstable_share={model['unstable_share']}")
-    if drift is not None and "pose_error_mm" in drift:
-        for k in ("pose_error_mm", "pose_error_deg", "drift_error_mm", "drift_error_deg",
-                  "mapped", "registered", "refused", "reference_offset_mm_median",
-                  "reference_offset_mm_max"):  # fmt: skip
-            parts.append(f"{k}={drift[k]}")
     return " ".join(parts)
 
 
-def plot(name: str, drift: dict, path: Path) -> None:
+def drift_line(name: str, drift: dict) -> str:
+    keys = ("dof", "pose_error_mm", "pose_error_deg", "drift_error_mm", "drift_error_deg",
+            "drift_residual_mm", "drift_residual_deg", "drift_residual_mm_max",
+            "still_pose_error_mm", "mapped", "registered", "refused", "still_mapped",
+            "still_registered", "same_frames", "reference_offset_mm_median",
+            "reference_offset_mm_max")  # fmt: skip
+    return " ".join([f"recording={name}", *(f"{k}={drift[k]}" for k in keys)])
+
+
+def plot(name: str, drifts: dict[str, dict], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = np.array(drift["per_frame"])
     fig, ax = plt.subplots(figsize=(6, 3.2))
-    ax.plot(rows[:, 0], rows[:, 3], label="without registration (the drift)")
-    ax.plot(rows[:, 0], rows[:, 1], label="with registration")
+    for i, (dof, drift) in enumerate(drifts.items()):
+        rows = np.array(drift["per_frame"])
+        if i == 0:
+            ax.plot(rows[:, 0], rows[:, 3], color="k", label="without registration (the drift)")
+        ax.plot(rows[:, 0], rows[:, 1], label=f"{dof}: against the reference")
+        ax.plot(rows[:, 0], drift["drift_residual_per_frame_mm"], ls=":",
+                label=f"{dof}: against registration without drift")  # fmt: skip
     ax.axhline(10, color="grey", lw=0.8, ls="--", label="target 10 mm")
     ax.set_xlabel("frame")
     ax.set_ylabel("camera position error, mm")
@@ -372,9 +437,12 @@ def main() -> None:
                         help="a folder of recordings (default AVS_REAL_DATA, else "
                         "../shared/data/real)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "real_data")
-    parser.add_argument("--rate", type=float, default=0.5, help="of the recordings' timing")
+    parser.add_argument("--rate", type=float, default=0.25, help="of the recordings' timing")
     parser.add_argument("--limit", type=int, default=0, help="frames per recording (0: all)")
     parser.add_argument("--only", nargs="*", default=None, help="these recordings (names)")
+    parser.add_argument("--dof", nargs="+", choices=("planar", "full"),
+                        default=["planar", "full"], help="the registration's unknowns, a "
+                        "drift and a still run each")  # fmt: skip
     args = parser.parse_args()
     if not args.data.is_dir():
         raise SystemExit(f"real_data: no recordings at {args.data} (see --data)")
@@ -385,16 +453,27 @@ def main() -> None:
             continue
         print(f"real_data: {root.name}: model run", file=sys.stderr, flush=True)
         model = run_recording(root, args.out, rate=args.rate, limit=args.limit)
-        drift = None
-        if read(root).poses is not None:
-            print(f"real_data: {root.name}: drift run (registration on)", file=sys.stderr,
-                  flush=True)  # fmt: skip
-            drift = run_recording(root, args.out, drift=DRIFT, registration=True,
-                                  rate=args.rate, limit=args.limit, tag="drift")  # fmt: skip
-            plot(root.name, drift, args.out / f"real_data_{root.name}.png")
-        results[root.name] = {"model": model, "drift": drift}
-        lines.append(line(root.name, model, drift))
+        lines.append(line(root.name, model))
         print(lines[-1], flush=True)
+        drifts: dict[str, dict] = {}
+        if read(root).poses is not None:
+            for dof in args.dof:
+                runs = {}
+                for tag, drift in (("still", None), ("drift", DRIFT)):
+                    print(f"real_data: {root.name}: {tag} run (registration on, {dof})",
+                          file=sys.stderr, flush=True)  # fmt: skip
+                    runs[tag] = run_recording(root, args.out, drift=drift, registration=True,
+                                              rate=args.rate, limit=args.limit,
+                                              tag=f"{tag}_{dof}", dof=dof,
+                                              offsets=tag == "drift")  # fmt: skip
+                if not np.allclose(runs["still"]["T_up"], runs["drift"]["T_up"], atol=1e-9):
+                    print(f"real_data: {root.name}: the runs found different T_up",
+                          file=sys.stderr)  # fmt: skip
+                drifts[dof] = runs["drift"] | drift_residual(runs["drift"], runs["still"])
+                lines.append(drift_line(root.name, drifts[dof]))
+                print(lines[-1], flush=True)
+            plot(root.name, drifts, args.out / f"real_data_{root.name}.png")
+        results[root.name] = {"model": model, "drift": drifts}
     record = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "data": str(args.data),
               "rate": args.rate, "drift": [DRIFT.mm, DRIFT.deg], "recordings": results}  # fmt: skip
     (args.out / "real_data.json").write_text(json.dumps(record, indent=1))

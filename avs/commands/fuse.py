@@ -54,6 +54,11 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--registration", choices=["on", "off"], default="on",
         help="register each view against the map before fusing it (thesis A.5)",
     )  # fmt: skip
+    p.add_argument(
+        "--registration-dof", choices=["planar", "full"], default="planar",
+        help="registration solves for the platform's x, y and yaw (planar: odometry's drift) "
+        "or all six",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, required=True, help="output directory")
     p.set_defaults(func=_fuse)
 
@@ -167,7 +172,9 @@ def run_fusion(args: argparse.Namespace, progress=None):
             bounds_max=tuple(hi),
             fusion=FusionConfig(mode=args.fusion),
             occupancy=OccupancyConfig(voxel=args.voxel),
-            registration=RegistrationConfig() if args.registration == "on" else None,
+            registration=RegistrationConfig(dof=args.registration_dof)
+            if args.registration == "on"
+            else None,
         )
     )
     odometry = encoders = None
@@ -305,6 +312,7 @@ def _fuse(args: argparse.Namespace) -> int:
         "fusion": args.fusion,
         "noise": args.noise,
         "registration": args.registration,
+        "registration_dof": args.registration_dof,
         "views": [asdict(m) for m in metrics],
     }
     (args.out / "metrics.json").write_text(json.dumps(out, indent=2))

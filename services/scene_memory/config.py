@@ -51,6 +51,12 @@ class SceneMemorySettings(ServiceSettings):
         description="register each integrated frame against the cloud so far (thesis A.5: "
         "point-to-plane ICP from the odometry pose) and publish memory/pose_correction",
     )
+    registration_dof: Literal["planar", "full"] = Field(
+        "planar",
+        description="… solving for: 'planar', a wheeled platform's odometry drift (x, y and yaw "
+        "about the world's vertical; the camera's height, roll and pitch are the kinematics' "
+        "and are kept), or 'full', all six (a hand-held camera, a platform that is not level)",
+    )
     registration_interval: float = Field(
         0.5,
         ge=0,

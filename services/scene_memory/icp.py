@@ -5,7 +5,9 @@ A point is matched to the mean of its own voxel, or, where that is empty, to the
 of the neighbours around its nearest corner; the match's plane has the normal of the points of
 the 3×3×3 voxels around it and passes through the voxel's mean (fitted when first matched,
 refitted as the voxel grows). Each Gauss-Newton step linearises
-r = n·(Rq + t) + d about the current pose, J = [(q × n)ᵀ nᵀ], with Tukey's biweight on r. A
+r = n·(Rq + t) + d about the current pose, J = [(q × n)ᵀ nᵀ], with Tukey's biweight on r, and
+solves it for the unknowns ``free`` names (all six, or a ground platform's x, y and yaw: ``FULL``,
+``PLANAR``; the rotation is about the world's origin, so yaw and a shift span SE(2)). A
 hash lookup where a point enters a new cell (against a persistent map, so nothing is rebuilt
 per frame) replaces Open3D's k-d tree build, normal estimation and nearest-neighbour search,
 which cost a kitchen frame 300-400 ms against a 20-view map.
@@ -22,6 +24,10 @@ from services.scene_memory.voxel_map import find
 
 #: a voxel's plane is refitted once its count has grown by this factor since the last fit
 REFIT = 1.5
+#: the unknowns ``icp`` solves for, of the step (ωx, ωy, ωz, tx, ty, tz) (world frame): all
+#: six, or the platform's shift in the ground plane and its yaw about the world's vertical
+FULL = np.arange(6, dtype=np.int64)
+PLANAR = np.array([2, 3, 4], dtype=np.int64)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -252,10 +258,11 @@ def icp(
     stats: np.ndarray, voxel: float, planes: np.ndarray, fitted: np.ndarray,
     thickness: float, T0: np.ndarray, max_distance: float, kernel: float, iterations: int,
     tolerance: float, weights: np.ndarray,
-    cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], free: np.ndarray,
 ) -> tuple[np.ndarray, int]:  # fmt: skip
     """Point-to-plane Gauss-Newton with Tukey's biweight (k = ``kernel``) from ``T0``: the
     transform (world → world) that puts ``source`` (n, 3) on the map, and the steps taken.
+    Each step solves for the unknowns ``free`` (``FULL``, ``PLANAR``), the others stay 0.
     A match farther than ``max_distance`` from its voxel's mean is dropped; the loop stops
     when a step moves less than ``tolerance`` (m, or rad × 1 m)."""
     T = T0.copy()
@@ -281,12 +288,22 @@ def icp(
                 g[a] += w * J[a] * r
                 for b in range(a, 6):
                     H[a, b] += w * J[a] * J[b]
-        for a in range(6):
-            for b in range(a):
-                H[a, b] = H[b, a]
-        if H[0, 0] + H[3, 3] <= 0:
+        m = free.shape[0]
+        Hf = np.empty((m, m))
+        gf = np.empty(m)
+        trace = 0.0
+        for a in range(m):
+            gf[a] = g[free[a]]
+            trace += H[free[a], free[a]]
+            for b in range(m):
+                i, j = min(free[a], free[b]), max(free[a], free[b])
+                Hf[a, b] = H[i, j]
+        if trace <= 0:
             break
-        x = -np.linalg.solve(H + 1e-9 * np.eye(6), g)
+        step = -np.linalg.solve(Hf + 1e-9 * np.eye(m), gf)
+        x = np.zeros(6)
+        for a in range(m):
+            x[free[a]] = step[a]
         T = _exp(x[:3], x[3:]) @ T
         if math.sqrt(x @ x) < tolerance:
             break

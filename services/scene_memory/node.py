@@ -81,7 +81,7 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
             map_stride=s.map_stride,
             keyframe_move=s.keyframe_move,
             keyframe_turn=s.keyframe_turn,
-            registration=RegistrationConfig() if s.registration else None,
+            registration=RegistrationConfig(dof=s.registration_dof) if s.registration else None,
             registration_interval=s.registration_interval,
         )
     )

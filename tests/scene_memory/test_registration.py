@@ -1,6 +1,7 @@
 """View registration (A.5): ICP takes a frame whose odometry pose is off by 5 cm and 3° back to
-its true pose against the map of the other views; a blank wall, which fits any sliding along
-it, keeps its prior and says why."""
+its true pose against the map of the other views (planar: a platform's drift in the ground
+plane and yaw; full: any direction and axis); a blank wall, which fits any sliding along it,
+keeps its prior and says why."""
 
 from __future__ import annotations
 
@@ -39,6 +40,16 @@ def perturbed(T: np.ndarray, rng: np.random.Generator, metres: float, degrees: f
     return out
 
 
+def perturbed_planar(T: np.ndarray, rng: np.random.Generator, metres: float, degrees: float):
+    """T moved by ``metres`` in the ground plane and turned by ``degrees`` about the vertical
+    through the camera: an odometry error of a ground platform."""
+    a = rng.uniform(0, 2 * math.pi)
+    out = T.copy()
+    out[:3, :3] = rotation([0, 0, 1], degrees) @ T[:3, :3]
+    out[:2, 3] += metres * np.array([math.cos(a), math.sin(a)])
+    return out
+
+
 @pytest.fixture(scope="module")
 def table_map(updates):
     """The registered cloud of five of the six table-top views (true poses), and the sixth."""
@@ -51,14 +62,17 @@ def table_map(updates):
     return memory.cloud.astype(np.float64), frames[5]
 
 
+@pytest.mark.parametrize("dof", ["planar", "full"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_icp_recovers_a_5_cm_3_degree_odometry_error(table_map, seed):
+def test_icp_recovers_a_5_cm_3_degree_odometry_error(table_map, seed, dof):
+    """planar: 5 cm in the ground plane and 3° of yaw; full: 5 cm and 3° about any axis."""
     cloud, frame = table_map
     T_true = np.asarray(frame.T_world_camera)
-    T_prior = perturbed(T_true, np.random.default_rng(seed), 0.05, 3.0)
+    move = perturbed_planar if dof == "planar" else perturbed
+    T_prior = move(T_true, np.random.default_rng(seed), 0.05, 3.0)
     assert pose_difference(T_true, T_prior) == pytest.approx((0.05, 3.0), abs=1e-6)
     pts = camera_points(frame.depth, frame.intrinsics, 0.35, 3.0)
-    result = register(pts, T_prior, cloud)
+    result = register(pts, T_prior, cloud, RegistrationConfig(dof=dof))
     assert result.accepted, result
     moved, turned = pose_difference(T_true, result.T_world_camera)
     assert moved <= 0.005 and turned <= 0.3, (moved, turned, result)
@@ -75,7 +89,7 @@ def test_registration_is_refused_where_the_geometry_does_not_constrain_it():
     wall = pts @ T_true[:3, :3].T + T_true[:3, 3]
     T_prior = T_true.copy()
     T_prior[:3, 3] += (0.04, -0.03, 0.0)  # slid along the wall
-    result = register(pts, T_prior, wall, RegistrationConfig())
+    result = register(pts, T_prior, wall, RegistrationConfig(dof="full"))
     assert not result.accepted and result.reason == "degenerate", result
     assert np.array_equal(result.T_world_camera, T_prior)
     assert result.conditioning < 1e-3 and result.fitness > 0.9
@@ -236,7 +250,7 @@ def test_the_registration_map_survives_a_snapshot(updates):
         assert len(a) == len(b) > 0
         assert np.array_equal(a.stats[: len(a)], b.stats[: len(b)])
     T_true = np.asarray(frames[5].T_world_camera)
-    T_prior = perturbed(T_true, np.random.default_rng(7), 0.05, 3.0)
+    T_prior = perturbed_planar(T_true, np.random.default_rng(7), 0.05, 3.0)
     pts = camera_points(frames[5].depth, frames[5].intrinsics, 0.35, 3.0)
     poses = [register(pts, T_prior, m.registration_map).T_world_camera for m in (memory, restored)]
     for T in poses:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from services.common.poses import pose_difference
-from services.scene_memory.icp import candidates, icp, residuals, smallest_eigen
+from services.scene_memory.icp import FULL, candidates, icp, residuals, smallest_eigen
 from services.scene_memory.registration import RegistrationConfig
 from services.scene_memory.voxel_map import VoxelMap, find, means, summarise
 
@@ -145,7 +145,7 @@ def test_icp_takes_a_perturbed_corner_back(seed):
     for p in RegistrationConfig().passes:
         m = VoxelMap.of(target, p.map_voxel)
         correction, steps = icp(moved, *m.arrays(), p.thickness, correction, p.distance, p.kernel,
-                                30, 1e-5, weights, candidates(len(moved)))  # fmt: skip
+                                30, 1e-5, weights, candidates(len(moved)), FULL)  # fmt: skip
         assert steps >= 1
     metres, degrees = pose_difference(T_true, correction @ T_prior)
     assert metres < 0.001 and degrees < 0.1, (metres, degrees)
