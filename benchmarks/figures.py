@@ -608,7 +608,7 @@ REGISTRY: dict[str, Figure] = {
             15,
             render_generalization,
         ),
-        Figure("real_data", "python benchmarks/real_data.py --out DIR", 6, render_real_data),
+        Figure("real_data", "python benchmarks/real_data.py --out DIR", 17, render_real_data),
         Figure(
             "live_explore",
             "python benchmarks/live_explore.py --scenes 5 --out DIR",
