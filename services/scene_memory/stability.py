@@ -1,0 +1,244 @@
+"""Support found in the fused geometry (thesis 3.2.2), where no single view saw the edge.
+
+The thesis draws a support edge between two primitives in contact, from the one below the
+separating plane to the one above; a primitive is stable when a chain of edges leads to the
+ground ρ. Per view, a contact is often out of sight (a mug's foot behind its body, a chair
+leg's top under the seat) or split between two segmentations of one object, so the memory
+also reads the contacts off the *fused* primitives, to a fixpoint, each from something
+already stable:
+
+- **floor**: a primitive whose bottom reaches the floor (the lowest large level plane, when
+  it lies near the world's ground z = 0) stands on it, wherever in the room: the floor runs
+  under everything, seen or not;
+- **level top**: its bottom lies on a stable level surface, at that surface's height *under
+  it* (the plane's own equation: a 2 m table top tilted by 1° is 2 cm higher at one end than
+  its box's centre), part of its base over the surface's footprint;
+- **contact below**: ``contact_points`` of its points or more lie within ``contact`` of a
+  stable primitive's points, and that contact is in its lower part (below its median height
+  by ``contact_below``) with the supporter's points there not above it: the separating plane
+  is below. A box beside a wall touches it at its side, not below, and stays unstable.
+
+``bottom``: a low percentile of a primitive's points' z (one flying pixel does not lower it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from schemas import Primitive
+
+#: points kept per primitive for the contact test (every k-th)
+SAMPLE = 1500
+
+
+@dataclass(frozen=True)
+class StabilityConfig:
+    rest_tolerance: float = 0.03  # m: a bottom this close to a surface's height lies on it
+    margin: float = 0.02  # m: a centre this far outside a surface's footprint is still over it
+    contact: float = 0.025  # m: points this close touch
+    contact_points: int = 5
+    contact_below: float = 0.02  # m: a contact this far below the median height is under it
+    floor_band: float = 0.04  # m: level planes this close to the lowest one are the floor ...
+    floor_max: float = 0.3  # ... when it lies this low (the world's ground is z = 0)
+    ground_area: float = 0.2  # m²: only level planes this large can be the floor
+    level_deg: float = 15.0  # a surface within this of horizontal is level
+
+
+@dataclass
+class Body:
+    """A fused primitive as stability sees it: its primitive, a sample of its points, their
+    box, its bottom and top (2nd and 98th percentile of their z) and median height."""
+
+    primitive: Primitive
+    points: np.ndarray
+    lo: np.ndarray = field(init=False)
+    hi: np.ndarray = field(init=False)
+    bottom: float = field(init=False)
+    median_z: float = field(init=False)
+    top: float = field(init=False)
+    _tree: cKDTree | None = field(default=None, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        p = self.points
+        if len(p) > SAMPLE:
+            p = self.points = p[:: int(np.ceil(len(p) / SAMPLE))]
+        if len(p):
+            self.lo, self.hi = p.min(axis=0), p.max(axis=0)
+            self.bottom = float(np.percentile(p[:, 2], 2))
+            self.median_z = float(np.median(p[:, 2]))
+            self.top = float(np.percentile(p[:, 2], 98))
+        else:
+            reach = np.abs(self.primitive.obb.rotation) @ self.primitive.obb.extent / 2
+            self.lo = self.primitive.obb.center - reach
+            self.hi = self.primitive.obb.center + reach
+            self.bottom = float(self.lo[2])
+            self.median_z = float(self.primitive.obb.center[2])
+            self.top = float(self.hi[2])
+
+    @property
+    def tree(self) -> cKDTree:
+        if self._tree is None:
+            self._tree = cKDTree(self.points)
+        return self._tree
+
+
+def is_level(p: Primitive, c: StabilityConfig) -> bool:
+    """A level plane (its normal within ``level_deg`` of z)."""
+    m = p.model
+    return m.kind == "plane" and abs(m.normal[2]) >= np.cos(np.radians(c.level_deg))
+
+
+def plane_height(p: Primitive) -> float:
+    """Height of a level plane under its box's centre (a large plane fitted 3° off level
+    is 15 cm off at the world's origin)."""
+    return _top_at(p, np.asarray(p.obb.center[:2]))
+
+
+def floor_height(bodies: dict[int, Body], c: StabilityConfig) -> float | None:
+    """The lowest large level plane's height, when it lies below ``floor_max``; else None
+    (a table top is no floor)."""
+    heights = [
+        plane_height(b.primitive)
+        for b in bodies.values()
+        if is_level(b.primitive, c) and _footprint_area(b.primitive) >= c.ground_area
+    ]
+    lowest = min(heights, default=None)
+    return lowest if lowest is not None and lowest < c.floor_max else None
+
+
+def _footprint_area(p: Primitive) -> float:
+    R, e = p.obb.rotation, p.obb.extent
+    k = int(np.argmax(np.abs(R[2])))
+    return float(np.prod(np.delete(e, k)))
+
+
+def _top_at(s: Primitive, xy: np.ndarray) -> float:
+    """A level surface's height at ``xy``: the plane's equation, or a box's top face."""
+    if s.model.kind == "plane":
+        n = s.model.normal
+        return float(-(n[0] * xy[0] + n[1] * xy[1] + s.model.d) / n[2])
+    return float(s.obb.center[2] + np.abs(s.obb.rotation[2]) @ s.obb.extent / 2)
+
+
+def _over(b: Body, s: Primitive, c: StabilityConfig) -> bool:
+    """Is part of ``b``'s base (``contact_points`` of its points within ``rest_tolerance`` of
+    its bottom) over ``s``'s footprint (its box's level axes, grown by ``margin``)? Partly on
+    top is on top (Jia et al. 2013): a book at the back of a counter whose black top gave
+    the sensor only its front edge."""
+    R = s.obb.rotation
+    k = int(np.argmax(np.abs(R[2])))
+    axes = [m for m in range(3) if m != k]
+    base = b.points[b.points[:, 2] <= b.bottom + c.rest_tolerance]
+    if not len(base):
+        base = np.asarray(b.primitive.obb.center)[None]
+    local = (base - s.obb.center) @ R
+    inside = np.all(np.abs(local[:, axes]) <= s.obb.extent[axes] / 2 + c.margin, axis=1)
+    return int(inside.sum()) >= min(c.contact_points, len(base))
+
+
+def _level_top(s: Primitive, c: StabilityConfig) -> bool:
+    """A surface things can lie on: a level plane, or a box with a level face."""
+    if s.model.kind == "plane":
+        return is_level(s, c)
+    if s.model.kind == "box":
+        return float(np.max(np.abs(s.obb.rotation[2]))) >= np.cos(np.radians(c.level_deg))
+    return False
+
+
+def _touches_below(b: Body, s: Body, c: StabilityConfig) -> bool:
+    """The contact rule: enough of ``b``'s points within ``contact`` of ``s``'s, in ``b``'s
+    lower part, with ``s``'s points there not above them."""
+    q = b.points[
+        np.all(b.points >= s.lo - c.contact, axis=1) & np.all(b.points <= s.hi + c.contact, axis=1)
+    ]
+    if len(q) < c.contact_points:
+        return False
+    d, k = s.tree.query(q, k=1, distance_upper_bound=c.contact)
+    near = np.isfinite(d)
+    if int(near.sum()) < c.contact_points:
+        return False
+    contact_z = float(np.median(q[near, 2]))
+    if contact_z > b.median_z - c.contact_below:
+        return False
+    return float(np.median(s.points[k[near], 2])) <= contact_z + c.contact / 2
+
+
+#: (resting body, supporter) → the contact rule's answer, for as long as both are unchanged
+Touches = dict[tuple[int, int], tuple[Body, Body, bool]]
+
+
+def settle(
+    bodies: dict[int, Body], stable: set[int], c: StabilityConfig, touches: Touches | None = None
+) -> dict[int, tuple[str, int | None]]:
+    """Of the bodies not in ``stable``, those the rules above find resting on something
+    stable (iterated: what rests on them next), each with its rule and supporter (None: the
+    floor). ``stable`` is not changed; ``touches``: the contact rule's answers kept between
+    calls (a model is rebuilt after every view, and most primitives did not change)."""
+    touches = {} if touches is None else touches
+    held = set(stable)
+    out: dict[int, tuple[str, int | None]] = {}
+    floor = floor_height(bodies, c)
+    ids = list(bodies)
+    lo = np.array([bodies[i].lo for i in ids]).reshape(-1, 3)
+    hi = np.array([bodies[i].hi for i in ids]).reshape(-1, 3)
+    row = {i: j for j, i in enumerate(ids)}
+    changed = True
+    while changed:
+        changed = False
+        held_rows = np.array([row[i] for i in held], dtype=int)
+        for i in ids:
+            if i in held:
+                continue
+            b = bodies[i]
+            how = _rests(b, i, floor, bodies, ids, lo, hi, held_rows, row, c, touches)
+            if how is not None:
+                out[i] = how
+                held.add(i)
+                held_rows = np.append(held_rows, row[i])
+                changed = True
+    return out
+
+
+def _rests(
+    b: Body,
+    i: int,
+    floor: float | None,
+    bodies: dict[int, Body],
+    ids: list[int],
+    lo: np.ndarray,
+    hi: np.ndarray,
+    held_rows: np.ndarray,
+    row: dict[int, int],
+    c: StabilityConfig,
+    touches: Touches,
+) -> tuple[str, int | None] | None:
+    if floor is not None and b.bottom <= floor + c.rest_tolerance:
+        return "floor", None
+    if not len(held_rows):
+        return None
+    # stable bodies whose boxes reach b's (grown by the contact distance), below its top
+    r = row[i]
+    grow = max(c.contact, c.rest_tolerance)
+    near = held_rows[
+        np.all(lo[held_rows] <= hi[r] + grow, axis=1)
+        & np.all(hi[held_rows] >= lo[r] - grow, axis=1)
+    ]
+    centre = np.asarray(b.primitive.obb.center)
+    for j in near.tolist():
+        s = bodies[ids[j]]
+        if not _level_top(s.primitive, c) or not _over(b, s.primitive, c):
+            continue
+        if abs(b.bottom - _top_at(s.primitive, centre[:2])) <= c.rest_tolerance:
+            return "level", ids[j]
+    for j in near.tolist():
+        s = bodies[ids[j]]
+        hit = touches.get((i, ids[j]))
+        if hit is None or hit[0] is not b or hit[1] is not s:
+            ok = bool(len(s.points) and len(b.points) and _touches_below(b, s, c))
+            hit = touches[i, ids[j]] = (b, s, ok)
+        if hit[2]:
+            return "contact", ids[j]
+    return None
