@@ -12,6 +12,7 @@ Entity paths (``<camera>`` e.g. ``head_rgbd``; ``<kind>`` plane, box, cylinder, 
     world/observation/primitives/<kind>   the frame's primitives, coloured by kind, labelled
     world/observation/support_graph   Arrows3D supporter centre → supported centre
     world/observation/unstable        Points3D: primitives with no support path to ρ
+    world/scene/unresolved            Points3D: of those, the ones nothing was seen under
     world/scene/...                   the same for the fused scene model (labels carry occ(e))
     world/map/occupied                Boxes3D: occupied voxels, pooled to a coarser grid
     world/map/roi                     Boxes3D: the region whose unknown voxels are counted
@@ -61,6 +62,7 @@ KIND_COLOURS: dict[str, tuple[int, int, int]] = {
 }
 KINDS = tuple(KIND_COLOURS)
 UNSTABLE_COLOUR = (230, 30, 30)
+UNRESOLVED_COLOUR = (250, 170, 20)  # no support found, nothing seen under it either
 STABLE_EDGE_COLOUR = (250, 250, 250)
 UNREACHABLE_COLOUR = (90, 90, 90)
 #: the ego-sphere is drawn as a sphere of this radius (m) this high above the platform (m)
@@ -215,7 +217,8 @@ def primitive_entities(prefix: str, primitives: list[Primitive]) -> list[Entity]
 def support_graph_entities(prefix: str, graph: SceneGraph, with_occ: bool) -> list[Entity]:
     """The support graph as arrows from each supporter's centre to its supported primitive's
     (red into an unstable one; labelled with occ(e) in the fused model), and the unstable
-    primitives (no support path to ρ) as red points at their centres."""
+    primitives (no support path to ρ) as red points at their centres, those whose support
+    is unresolved (the fused model's: nothing seen under them) amber."""
     centre = {p.id: np.asarray(p.obb.center, np.float64) for p in graph.primitives}
     unstable = set(graph.unstable_ids)
     edges = graph.support_edges
@@ -226,7 +229,7 @@ def support_graph_entities(prefix: str, graph: SceneGraph, with_occ: bool) -> li
         np.uint8,
     ).reshape(-1, 3)
     labels = [f"occ {e.occ}" for e in edges] if with_occ else None
-    ids = sorted(unstable)
+    ids, unresolved = sorted(unstable), sorted(graph.unresolved_ids)
     return [
         Entity(
             f"{prefix}/support_graph",
@@ -234,16 +237,23 @@ def support_graph_entities(prefix: str, graph: SceneGraph, with_occ: bool) -> li
                 origins=origins, vectors=tips - origins, colors=colours, labels=labels, radii=0.004
             ),
         ),
-        Entity(
-            f"{prefix}/unstable",
-            rr.Points3D(
-                np.array([centre[i] for i in ids]).reshape(-1, 3),
-                colors=np.tile(np.array(UNSTABLE_COLOUR, np.uint8), (len(ids), 1)),
-                labels=[f"unstable {i}" for i in ids],
-                radii=0.03,
-            ),
+        _marks(f"{prefix}/unstable", [centre[i] for i in ids], UNSTABLE_COLOUR,
+               [f"unstable {i}" for i in ids]),
+        _marks(f"{prefix}/unresolved", [centre[i] for i in unresolved], UNRESOLVED_COLOUR,
+               [f"unresolved {i}" for i in unresolved]),
+    ]  # fmt: skip
+
+
+def _marks(path: str, at: list, colour: tuple, labels: list[str]) -> Entity:
+    return Entity(
+        path,
+        rr.Points3D(
+            np.array(at).reshape(-1, 3),
+            colors=np.tile(np.array(colour, np.uint8), (len(at), 1)),
+            labels=labels,
+            radii=0.03,
         ),
-    ]
+    )
 
 
 def _camera(path: str, T: np.ndarray, intrinsics: CameraIntrinsics, plane: float) -> list[Entity]:

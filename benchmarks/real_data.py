@@ -11,8 +11,9 @@ whole recording (so that every frame is perceived, however slow):
   ``perception/observation``), perception's own time per frame (the observations'
   ``timings_ms["total"]``, median), the fused primitives by kind (the memory's ``memory/scene``
   at the end), the heights of the large level planes in it (normal within 10° of z, longest
-  side ≥ 0.3 m: the floor, table tops), and the share of the fused primitives marked unstable
-  (``SceneModel.unstable_ids``);
+  side ≥ 0.3 m: the floor, table tops), the share of the fused primitives marked unstable
+  (``SceneModel.unstable_ids``: no support found, and a view saw nothing under them) and the
+  share whose support is unresolved (``unresolved_ids``: none found, none seen under them);
 - **drift** run, where the recording has poses, once per ``--dof`` (the registration's
   unknowns, ``AVS_SCENE_MEMORY_REGISTRATION_DOF``: ``planar``, a ground platform's x, y and
   yaw, or ``full``): the same with ``--drift 0.5,0.02`` (the k-th frame's pose moved k·0.5 mm
@@ -43,6 +44,7 @@ One line per recording, and one per recording with poses and ``--dof``:
 
 recording=<name> frames=<n> observations=<n> perception_ms=<median> primitives=<n>
 plane=<n> cylinder=<n> sphere=<n> box=<n> level_planes_m=<h>x<n>,… unstable_share=<x>
+unresolved_share=<x>
 
 recording=<name> dof=<planar|full> pose_error_mm=<x> pose_error_deg=<x> drift_error_mm=<x>
 drift_error_deg=<x> drift_residual_mm=<x> drift_residual_deg=<x> drift_residual_mm_max=<x>
@@ -212,6 +214,7 @@ def model_figures(model: SceneModel) -> dict:
         **{k: kinds.get(k, 0) for k in ("plane", "cylinder", "sphere", "box")},
         "level_planes_m": level_planes(model),
         "unstable_share": round(len(model.unstable_ids) / n, 3) if n else 0.0,
+        "unresolved_share": round(len(model.unresolved_ids) / n, 3) if n else 0.0,
     }
 
 
@@ -395,6 +398,7 @@ def line(name: str, model: dict) -> str:
     levels = grouped(model["level_planes_m"])
     parts.append("level_planes_m=" + (",".join(f"{h:.2f}x{n}" for h, n in levels) or "-"))
     parts.append(f"unstable_share={model['unstable_share']}")
+    parts.append(f"unresolved_share={model['unresolved_share']}")
     return " ".join(parts)
 
 

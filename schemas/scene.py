@@ -144,6 +144,12 @@ class SceneGraph(Model):
     unstable_ids: list[int] = Field(
         default_factory=list, description="primitives with no support path to ρ"
     )
+    unresolved_ids: list[int] = Field(
+        default_factory=list,
+        description="of the primitives with no support path to ρ, those whose support no view"
+        " could see (nothing seen under them yet: an incomplete model, thesis 3.2.2); the"
+        " scene memory moves these out of unstable_ids",
+    )
     affordances: list[Affordance] = Field(default_factory=list)
 
     @model_validator(mode="after")
@@ -158,6 +164,7 @@ class SceneGraph(Model):
             ("support_edges", i) for e in self.support_edges for i in (e.supporter, e.supported)
         ]
         refs += [("unstable_ids", i) for i in self.unstable_ids]
+        refs += [("unresolved_ids", i) for i in self.unresolved_ids]
         refs += [("affordances", a.primitive_id) for a in self.affordances]
         for where, i in refs:
             if i not in known:

@@ -87,7 +87,7 @@ def test_primitives_by_kind_support_graph_and_unstable_ones_are_drawn(tmp_path):
     obs = obs.model_copy(update={"root_id": 0, "unstable_ids": [3]})
     fused = SceneModel(
         seq=1, stamp=1.0, model_version=1, n_views=1, fusion="sg",
-        primitives=obs.primitives, root_id=0, unstable_ids=[3],
+        primitives=obs.primitives, root_id=0, unstable_ids=[3], unresolved_ids=[1],
         support_edges=[SupportEdge(supporter=0, supported=1, occ=3),
                        SupportEdge(supporter=0, supported=2, occ=1)],
     )  # fmt: skip
@@ -125,6 +125,9 @@ def test_primitives_by_kind_support_graph_and_unstable_ones_are_drawn(tmp_path):
     # the fused model: its own entities, occ(e) on the arrows
     assert last(rows, "/world/scene/support_graph", "Arrows3D:labels") == ["occ 3", "occ 1"]
     assert len(last(rows, "/world/scene/primitives/box", "Boxes3D:centers")) == 2
+    # ... and the cup, whose support no view saw, amber apart from the unstable lid
+    assert last(rows, "/world/scene/unresolved", "Points3D:labels") == ["unresolved 1"]
+    assert last(rows, "/world/scene/unstable", "Points3D:labels") == ["unstable 3"]
     assert set(KINDS) == {"plane", "box", "cylinder", "sphere"}
 
 

@@ -50,6 +50,24 @@ class ViewDepth:
         c = np.clip((u // self.cell).astype(np.int64), 0, self.shape[1] - 1)
         return r, c, z, ok
 
+    def seen_through_each(
+        self, groups: list[np.ndarray], margin: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``seen_through`` of each group of points (all of them, in one projection)."""
+        if not groups:
+            return np.zeros(0, int), np.zeros(0, int)
+        owner = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
+        r, c, z, ok = self.project(np.concatenate(groups).astype(np.float64, copy=False))
+        near = np.where(ok, self.near[r, c], np.inf)
+        tolerance = 3 * depth_sigma(z) + margin
+        held = ok & np.isfinite(near)
+        through = held & (near > z + tolerance)
+        evidence = held & ~(near < z - tolerance)
+        n = len(groups)
+        return np.bincount(owner, through, n).astype(int), np.bincount(owner, evidence, n).astype(
+            int
+        )
+
     def seen_through(self, points: np.ndarray, margin: float, sample: int = 200) -> tuple[int, int]:
         """(points seen through, points with evidence either way) of a primitive's ``points``
         (at most ``sample`` of them, spread): seen through where the nearest surface in its

@@ -50,7 +50,13 @@ from schemas import (
 from services.common import sat
 from services.common.sat import boxes_overlap, overlap, pairs_overlap
 from services.scene_memory.evidence import ViewDepth, depth_sigma
-from services.scene_memory.stability import Body, StabilityConfig, Touches, settle
+from services.scene_memory.stability import (
+    BELOW_EVIDENCE,
+    Body,
+    StabilityConfig,
+    Touches,
+    settle,
+)
 
 MAX_POINTS = 6000  # points a memory primitive keeps (voxel-downsampled)
 BOX_GROWTH = 0.01  # m: points this far beyond a box's face make it grow
@@ -102,6 +108,11 @@ class FusionConfig:
     #: a primitive of one view that this many later views saw the surface of without
     #: matching it goes (0: never)
     unconfirmed_views: int = 3
+    #: a primitive with no support found is *unstable* once this many views saw through the
+    #: space 5-15 cm under its base (nothing there holds it); until then its support is
+    #: *unresolved*: hidden from every view so far, the thesis's "incomplete scene model"
+    #: (3.2.2). 0: every primitive with no support is unstable (the thesis's rule)
+    below_views: int = 1
     mode: str = "sg"  # pc | sg | pc+sg
 
 
@@ -113,6 +124,7 @@ class MemoryPrimitive:
     views: int = 1
     seen_through: int = 0  # views in a row that saw through it since it was last matched
     unconfirmed: int = 0  # views that saw its surface and matched nothing to it (views == 1)
+    below_free: int = 0  # views that saw through the space under its base (stability.py)
 
 
 @dataclass
@@ -595,6 +607,7 @@ class Fusion:
         self._touches: Touches = {}  # … and which touch which from below
         #: of the last model's stable primitives, those stability found resting (rule, on)
         self.settled: dict[int, tuple[str, int | None]] = {}
+        self.unresolved: list[int] = []  # … and of its unsupported ones, those not seen under
 
     #: caches, rebuilt as needed: never in a snapshot
     TRANSIENT = ("_boxes", "_messages", "_edge_messages", "_bodies", "_touches")
@@ -762,8 +775,11 @@ class Fusion:
             result.added += 1
             result.removed += self._join_pieces(mem, pieces, distance, result)
         if not whole:
-            result.decayed = self._decay(obs, visible, set(result.mapping.values()))
+            depth = ViewDepth(obs, c.through_cell)
+            result.decayed = self._decay(obs, visible, set(result.mapping.values()), depth)
             result.removed += result.decayed
+            in_view = {m.id for m in visible} | set(result.mapping.values())
+            self._look_below([self.prims[i] for i in in_view if i in self.prims], depth)
         self._combine_support(obs, result.mapping)
         result.removed += self._consolidate(set(result.mapping.values()), visible, result)
         self.n_views += 1
@@ -772,7 +788,11 @@ class Fusion:
         return result
 
     def _decay(
-        self, obs: SceneObservation, visible: list[MemoryPrimitive], matched: set[int]
+        self,
+        obs: SceneObservation,
+        visible: list[MemoryPrimitive],
+        matched: set[int],
+        depth: ViewDepth | None = None,
     ) -> int:
         """Negative evidence (``evidence.py``): the memory primitives in view that this view
         did not match and saw through count it; ``decay_views`` in a row remove them (a
@@ -784,7 +804,7 @@ class Fusion:
         c = self.config
         if c.decay_views <= 0:
             return 0
-        depth, gone = None, 0
+        gone = 0
         for m in visible:
             if m.id not in self.prims:
                 continue
@@ -805,6 +825,21 @@ class Fusion:
                 self.prims.pop(m.id)
                 gone += 1
         return gone
+
+    def _look_below(self, visible: list[MemoryPrimitive], depth: ViewDepth) -> None:
+        """Count, for each memory primitive in view, whether this view saw through the space
+        under its base (``Body.probes``; ``ViewDepth.seen_through`` on them, as negative
+        evidence does): where a supporter would be, there is nothing."""
+        c = self.config
+        if c.below_views <= 0 or not visible:
+            return
+        bodies = self._stability_bodies()
+        through, evidence = depth.seen_through_each(
+            [bodies[m.id].probes for m in visible], c.through_margin
+        )
+        for m, t, e in zip(visible, through.tolist(), evidence.tolist(), strict=True):
+            if e >= BELOW_EVIDENCE and t > c.through_share * e:
+                m.below_free += 1
 
     def _join_pieces(
         self,
@@ -997,8 +1032,11 @@ class Fusion:
         self, support: dict[tuple[int, int], int] | None = None, shapes: _Shapes | None = None
     ) -> tuple[int | None, list[int]]:
         """ρ (the lowest primitive) and the primitives with no support chain to the ground
-        (``support``: ``self.support()`` when already at hand)."""
+        that a view saw nothing under (``below_views``); those with none and nothing seen
+        under them (their support hidden so far) go to ``self.unresolved``. ``support``:
+        ``self.support()`` when already at hand."""
         if not self.prims:
+            self.settled, self.unresolved = {}, []
             return None, []
         shapes = shapes or _Shapes()
         low = {
@@ -1032,7 +1070,12 @@ class Fusion:
             queue.extend(new)
             stable |= set(new)
         self.settled = settled
-        return root, sorted(set(self.prims) - stable)
+        unsupported = set(self.prims) - stable
+        views = self.config.below_views
+        self.unresolved = sorted(
+            i for i in unsupported if views > 0 and self.prims[i].below_free < views
+        )
+        return root, sorted(unsupported - set(self.unresolved))
 
     @property
     def _stability(self) -> StabilityConfig:
@@ -1166,6 +1209,7 @@ class Fusion:
             ],
             root_id=root,
             unstable_ids=unstable,
+            unresolved_ids=self.unresolved,
             added=self.last.added,
             modified=self.last.modified,
             removed=self.last.removed,

@@ -32,6 +32,12 @@ from schemas import Primitive
 
 #: points kept per primitive for the contact test (every k-th)
 SAMPLE = 1500
+#: how far under a body's base the space is probed for a support (m), and from how many of
+#: its base points
+BELOW = (0.05, 0.10, 0.15)
+BASE_POINTS = 12
+#: probes a view must hold evidence on (a surface in their cell, not hidden) to count
+BELOW_EVIDENCE = 4
 
 
 @dataclass(frozen=True)
@@ -60,6 +66,7 @@ class Body:
     median_z: float = field(init=False)
     top: float = field(init=False)
     _tree: cKDTree | None = field(default=None, init=False, repr=False)
+    _probes: np.ndarray | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         p = self.points
@@ -77,6 +84,19 @@ class Body:
             self.bottom = float(self.lo[2])
             self.median_z = float(self.primitive.obb.center[2])
             self.top = float(self.hi[2])
+
+    @property
+    def probes(self) -> np.ndarray:
+        """Points in the space under the base (``BELOW`` under ``BASE_POINTS`` of its lowest
+        points): where a supporter would be. A view that sees through them saw nothing
+        there."""
+        if self._probes is None:
+            base = self.points[self.points[:, 2] <= self.bottom + 0.03] if len(self.points) else []
+            if not len(base):
+                base = np.array([[*self.primitive.obb.center[:2], self.bottom]])
+            base = base[np.linspace(0, len(base) - 1, min(len(base), BASE_POINTS)).astype(int)]
+            self._probes = np.concatenate([base - [0.0, 0.0, d] for d in BELOW])
+        return self._probes
 
     @property
     def tree(self) -> cKDTree:

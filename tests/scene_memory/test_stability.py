@@ -73,14 +73,14 @@ def test_a_book_at_the_back_of_a_counter_seen_only_at_its_front_rests_on_it():
 
 def test_contact_from_below_supports_and_contact_at_the_side_does_not():
     floor = plane(0, (-1.0, 3.0), (-1.0, 1.0), 0.0)
-    drum = cylinder(1, (1.0, 0.0, 0.0), 0.25, 0.6, np.pi)  # its mantle faces −x
-    lying = box(2, (0.78, 0.0, 0.72), (0.1, 0.1, 0.24))  # its foot on the drum's rim
+    ramp = tilted(1, (0.5, 1.5), (-0.5, 0.5), 0.3, 30.0)  # no level top to lie on
+    foot = 0.3 - np.tan(np.radians(30.0)) * 0.05  # the ramp's height under the box's low edge
+    resting = box(2, (1.0, 0.0, foot + 0.055), (0.1, 0.1, 0.1))  # its low edge on the ramp
     beside = box(3, (0.7, 0.6, 0.5), (0.1, 0.1, 0.2))  # nothing below it
     the_wall = wall(4, (-1.0, 1.0), 0.8, (0.0, 1.6))  # touches 3 at its side
-    bodies = _bodies(floor, drum, lying, beside, the_wall)
-    got = settle(bodies, {0, 4}, C)
-    assert got.get(1) == ("floor", None) and got.get(2) == ("contact", 1), got
-    assert 3 not in got  # its side touches the wall, but nothing holds it from below
+    bodies = _bodies(floor, ramp, resting, beside, the_wall)
+    got = settle(bodies, {0, 1, 4}, C)
+    assert got == {2: ("contact", 1)}, got  # 3: its side touches the wall, nothing below
 
 
 def test_the_memory_marks_stable_what_the_geometry_holds_without_seen_edges():
@@ -94,6 +94,8 @@ def test_the_memory_marks_stable_what_the_geometry_holds_without_seen_edges():
     fusion.update(observation(0, [floor, table, mug, chair, lamp]))  # no support edges
     model = fusion.scene_model()
     z = {round(float(p.obb.center[2]), 2): p.id for p in model.primitives}
-    assert model.unstable_ids == [z[1.3]], (model.unstable_ids, z)
+    # the lamp alone is not stable (unstable where the view saw the table past its base's
+    # edge, else unresolved: from straight above a box hides what is under it)
+    assert sorted(model.unstable_ids + model.unresolved_ids) == [z[1.3]], (model, z)
     rules = {rule for rule, _ in fusion.settled.values()}
     assert rules == {"floor", "level"}, fusion.settled
