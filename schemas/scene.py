@@ -173,7 +173,10 @@ class SceneGraph(Model):
 
 
 class SceneObservation(SceneGraph, Stamped):
-    """The semantic scene perceived in one RGB-D frame (perception/observation)."""
+    """The semantic scene perceived in one RGB-D frame (perception/observation). v2: the
+    graph's ``unresolved_ids`` (empty: perception's unstable are those of one view)."""
+
+    VERSION: ClassVar[int] = 2
 
     camera: str
     frame_seq: int = Field(ge=0, description="seq of the RgbdFrame this was computed from")
@@ -190,9 +193,10 @@ class SceneModel(SceneGraph, Stamped):
     """The fused scene across views (memory/scene), with occ(e) on support edges. v2:
     ``frame_seq`` and ``frame_stamp``, the frame whose observation the model fused last. v3:
     ``fused_frames``, every frame whose observation this model is the first to hold (the scene
-    memory publishes one model for all the observations that waited while it fused)."""
+    memory publishes one model for all the observations that waited while it fused). v4:
+    ``unresolved_ids``, moved out of ``unstable_ids`` (nothing seen under them yet)."""
 
-    VERSION: ClassVar[int] = 3
+    VERSION: ClassVar[int] = 4
 
     model_version: int = Field(ge=0, description="increases with every accepted update")
     n_views: int = Field(ge=0)

@@ -182,9 +182,8 @@ def _fix_scene_graph(draw, values: dict, dims: dict) -> None:
     values["spatial_edges"] = relink(values.get("spatial_edges", []), ("a", "b"))
     values["support_edges"] = relink(values.get("support_edges", []), ("supporter", "supported"))
     values["affordances"] = relink(values.get("affordances", []), ("primitive_id",))
-    values["unstable_ids"] = (
-        [draw(ids) for _ in values.get("unstable_ids", [])] if ids is not None else []
-    )
+    for key in ("unstable_ids", "unresolved_ids"):
+        values[key] = [draw(ids) for _ in values.get(key, [])] if ids is not None else []
     values["root_id"] = draw(ids) if ids is not None and values.get("root_id") is not None else None
 
 
