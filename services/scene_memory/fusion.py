@@ -125,6 +125,7 @@ class MemoryPrimitive:
     seen_through: int = 0  # views in a row that saw through it since it was last matched
     unconfirmed: int = 0  # views that saw its surface and matched nothing to it (views == 1)
     below_free: int = 0  # views that saw through the space under its base (stability.py)
+    round_votes: int = 0  # views that saw it as a cylinder minus those that saw a sphere
 
 
 @dataclass
@@ -321,6 +322,25 @@ def compare_models(a: Primitive, b: Primitive, c: FusionConfig, distance: float 
     # the view ends, and a later view sees more of it; Eq. 3.8's coverage tells the rest
     R = np.abs(ma.rotation.T @ mb.rotation)
     return bool(np.all(R.max(axis=1) >= np.cos(np.radians(c.axis_angle_deg))))
+
+
+def round_pair(a: Primitive, b: Primitive, c: FusionConfig) -> bool:
+    """A sphere and a cylinder of about one radius, the sphere's centre on the cylinder's
+    axis within its length: one round object that one view fitted as a ball and another as a
+    can (a bellied cup seen from the side, then from above)."""
+    if {a.model.kind, b.model.kind} != {"sphere", "cylinder"}:
+        return False
+    ball, can = (a.model, b.model) if a.model.kind == "sphere" else (b.model, a.model)
+    if abs(ball.radius - can.radius) > c.radius:
+        return False
+    v = ball.center - can.center
+    along = float(v @ can.axis)
+    off_axis = float(np.linalg.norm(v - along * can.axis))
+    return off_axis < c.center and abs(along) <= can.height / 2 + c.center
+
+
+def _round_vote(kind: str) -> int:
+    return {"cylinder": 1, "sphere": -1}.get(kind, 0)
 
 
 def voxel_keys(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -717,11 +737,11 @@ class Fusion:
                 in_old = inlier(psi.points, phi.obb, c.obb_margin, boxes)
                 # a cylinder or sphere of the same parameters overlapping it is it (a box's
                 # extent is no such parameter: a part seen is smaller than the whole)
+                same_kind = phi.model.kind == psi.primitive.model.kind != "box"
                 same_model = (
-                    phi.model.kind == psi.primitive.model.kind != "box"
-                    and compare_models(phi, psi.primitive, c, distance)
-                    and max(in_new, in_old) > c.lambda_p
-                )
+                    (same_kind and compare_models(phi, psi.primitive, c, distance))
+                    or round_pair(phi, psi.primitive, c)
+                ) and max(in_new, in_old) > c.lambda_p
                 if solids and max(in_new, in_old) <= c.lambda_o and not same_model:
                     continue  # two solids are one only when one covers the other
                 # solids are one only where the points of one lie on the other's surface (a
@@ -754,12 +774,14 @@ class Fusion:
                     pts = self._not_annexed(target, pts, visible)
                 if self._merge_into(target, pts) and outcome == "same":
                     result.modified += 1
+                self._vote_round(target, phi)
                 result.removed += self._join_pieces(target, pieces, distance, result)
                 near_of.moved(target)
                 result.mapping[phi.id] = target.id
                 continue
             mid = self._new_id()
             mem = MemoryPrimitive(mid, phi.model_copy(update={"id": mid}), downsample(pts, c.voxel))
+            mem.round_votes = _round_vote(phi.model.kind)
             if outcome == "replace":
                 old = self.prims.pop(target.id)
                 mem.points = downsample(mem.points, c.voxel, more=old.points)
@@ -825,6 +847,30 @@ class Fusion:
                 self.prims.pop(m.id)
                 gone += 1
         return gone
+
+    def _same_round(self, a: MemoryPrimitive, b: MemoryPrimitive, share: float) -> bool:
+        """Two memory cylinders or spheres of one round object (the same parameters, or a
+        ``round_pair``) overlapping by more than λ_p: views that each matched one of them,
+        never the memory with itself (a mug held as three cylinders)."""
+        pa, pb = a.primitive, b.primitive
+        if {pa.model.kind, pb.model.kind} - {"sphere", "cylinder"}:
+            return False
+        if not (compare_models(pa, pb, self.config) or round_pair(pa, pb, self.config)):
+            return False
+        back = inlier(a.points, pb.obb, self.config.obb_margin, self._boxes)
+        return max(share, back) > self.config.lambda_p
+
+    def _vote_round(self, mem: MemoryPrimitive, phi: Primitive, votes: int | None = None) -> None:
+        """A round object is the kind most of its views saw (``round_pair``): when a merge
+        tips the vote, it is refitted as this view's kind on all its points. ``votes``: the
+        merged one's own (a memory primitive joining), else this view's one."""
+        kind = mem.primitive.model.kind
+        if kind not in ("sphere", "cylinder") or phi.model.kind not in ("sphere", "cylinder"):
+            return
+        mem.round_votes += _round_vote(phi.model.kind) if votes is None else votes
+        if phi.model.kind != kind and _round_vote(phi.model.kind) * mem.round_votes > 0:
+            base = phi.model_copy(update={"id": mem.id})
+            mem.primitive = refit(base, mem.points.astype(np.float64), mem.id)
 
     def _look_below(self, visible: list[MemoryPrimitive], depth: ViewDepth) -> None:
         """Count, for each memory primitive in view, whether this view saw through the space
@@ -952,12 +998,16 @@ class Fusion:
                     continue
                 share = inlier(m.points, solid.primitive.obb, c.obb_margin, self._boxes)
                 kind = m.primitive.model.kind
+                inside = (kind == "plane" and share > c.lambda_o) or (
+                    kind in SOLIDS and share >= c.contained
+                )
                 if (
-                    (kind == "plane" and share > c.lambda_o)
-                    or (kind in SOLIDS and share >= c.contained)
-                ) and on_surface(solid.primitive, m.points, c.surface_tolerance):
+                    inside and on_surface(solid.primitive, m.points, c.surface_tolerance)
+                ) or self._same_round(solid, m, share):
                     self.prims.pop(m.id)
                     self._merge_into(solid, m.points.astype(np.float64))
+                    if kind in ("sphere", "cylinder"):
+                        self._vote_round(solid, m.primitive, m.round_votes)
                     self._rename_edges(m.id, t)
                     for k, v in result.mapping.items():
                         if v == m.id:
