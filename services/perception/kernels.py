@@ -704,3 +704,77 @@ def rectangle_span(Q: np.ndarray, d1: np.ndarray) -> tuple[float, float, float, 
         v = -Q[i, 0] * d1[1] + Q[i, 1] * d1[0]
         u0, u1, v0, v1 = min(u0, u), max(u1, u), min(v0, v), max(v1, v)
     return u0, u1, v0, v1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _fifth(x: np.ndarray) -> float:
+    """``np.percentile(x, 5)`` of a non-empty array (linear interpolation, numpy's rounding):
+    ``relations.fifth_percentile`` on a sorted copy."""
+    s = np.sort(x)
+    n = s.shape[0]
+    v = 0.05 * n + 0.95 - 1
+    i = min(max(math.floor(v), 0), n - 1)
+    j = min(i + 1, n - 1)
+    g = v - math.floor(v)
+    a, b = s[i], s[j]
+    return b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g
+
+
+@njit(cache=True, nogil=True)
+def face_contact(points, center, R, half, contact):
+    """``relations._face_contact`` on one primitive's (sampled) points against another's box
+    (centre, rotation with the axes as columns, half extents). Returns (found, outward normal,
+    contact point, overlap share) of the best touched face."""
+    n = points.shape[0]
+    local = np.empty((n, 3))
+    for p in range(n):
+        dx, dy, dz = points[p, 0] - center[0], points[p, 1] - center[1], points[p, 2] - center[2]
+        for k in range(3):
+            local[p, k] = dx * R[0, k] + dy * R[1, k] + dz * R[2, k]
+    found, best_share = False, 0.0
+    best_n, best_point = np.zeros(3), np.zeros(3)
+    over = np.empty(n, np.bool_)
+    for k in range(3):
+        k1, k2 = (k + 1) % 3, (k + 2) % 3
+        count = 0
+        for p in range(n):
+            over[p] = (abs(local[p, k1]) <= half[k1] + contact) and (
+                abs(local[p, k2]) <= half[k2] + contact
+            )
+            count += over[p]
+        share = count / n
+        if share < 0.05:
+            continue
+        for sign in (1.0, -1.0):
+            d = np.empty(count)
+            m = 0
+            for p in range(n):
+                if over[p]:
+                    d[m] = sign * local[p, k] - half[k]
+                    m += 1
+            if _fifth(d) < -contact / 2 or d.min() > contact:
+                continue
+            beyond = np.empty(n)
+            for p in range(n):
+                beyond[p] = sign * local[p, k] - half[k]
+            if _fifth(beyond) < -contact / 2:
+                continue  # the other reaches past the face's plane beside it
+            if found and share <= best_share:
+                continue
+            found, best_share = True, share
+            for a in range(3):
+                best_n[a] = sign * R[a, k]
+                best_point[a] = center[a] + best_n[a] * half[k]
+            touching = 0
+            acc = np.zeros(3)
+            m = 0
+            for p in range(n):
+                if over[p]:
+                    if abs(d[m]) < contact:
+                        touching += 1
+                        for a in range(3):
+                            acc[a] += points[p, a]
+                    m += 1
+            if touching > 0:
+                best_point = acc / touching
+    return found, best_n, best_point, best_share

@@ -26,7 +26,8 @@ from schemas import (
     SphereModel,
     SupportEdge,
 )
-from services.perception import relations
+from services.common.sat import pairs_overlap
+from services.perception import kernels, relations
 from services.perception.affordances import AffordanceOut, Hand, affordances
 from services.perception.cloud import organized_cloud
 from services.perception.obb import Box, intersect
@@ -117,7 +118,13 @@ class Perception:
         self.perceive(z, None, K, np.eye(4))
         self.perceive(z, rgb, K, np.eye(4))
         table = Box(np.zeros(3), np.eye(3), np.array([1.0, 1.0, 0.1]))  # two primitives' boxes:
-        intersect(table, Box(np.array([0, 0, 0.1]), np.eye(3), np.full(3, 0.1)), 0.01)
+        cup = Box(np.array([0, 0, 0.1]), np.eye(3), np.full(3, 0.1))
+        intersect(table, cup, 0.01)
+        both = [table, cup]
+        pairs_overlap(
+            *(np.stack([getattr(b, k) for b in both]) for k in ("rotation", "center", "extent"))
+        )
+        kernels.face_contact(cup.corners(), table.center, table.rotation, table.extent / 2, 0.02)
 
     def perceive(
         self,

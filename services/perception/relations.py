@@ -17,7 +17,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.perception.obb import Box, intersect
+from services.common.sat import pairs_overlap
+from services.perception import kernels
+from services.perception.obb import Box
 from services.perception.primitives import Extracted
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -55,14 +57,19 @@ def root(prims: list[Extracted]) -> int | None:
 def spatial_edges(
     prims: list[Extracted], config: RelationConfig, in_view: list[bool] | None = None
 ) -> list[tuple[int, int]]:
-    """Pairs whose ε-extended OBBs intersect (Eq. 3.5)."""
+    """Pairs whose ε-extended OBBs intersect (Eq. 3.5): every pair in one compiled pass."""
     keep = [i for i in range(len(prims)) if in_view is None or in_view[i]]
-    edges = []
-    for ii, i in enumerate(keep):
-        for j in keep[ii + 1 :]:
-            if intersect(prims[i].box, prims[j].box, config.epsilon):
-                edges.append((i, j))
-    return edges
+    if len(keep) < 2:
+        return []
+    boxes = [prims[i].box for i in keep]
+    hit = pairs_overlap(
+        np.stack([b.rotation for b in boxes]),
+        np.stack([b.center for b in boxes]),
+        np.stack([b.extent for b in boxes]),
+        config.epsilon,
+    )
+    a, b = np.nonzero(np.triu(hit, 1))
+    return [(keep[i], keep[j]) for i, j in zip(a.tolist(), b.tolist(), strict=True)]
 
 
 def is_support_surface(p: Extracted, config: RelationConfig) -> bool:
@@ -98,11 +105,27 @@ def _face_contact(s: Extracted, o: Extracted, config: RelationConfig):
     overlap share) of the best one, or None. ``o``'s points must lie beyond the face plane (up
     to noise; all of them, not only those over the face: a taller box beside ``s`` touches
     its top face's edge but does not rest on it), come within the contact distance of it,
-    and a share of them must project onto the face."""
+    and a share of them must project onto the face (compiled: 0.1 ms a pair in numpy, a
+    hundred pairs on a cluttered real frame)."""
+    points = o.points
+    if len(points) > CONTACT_SAMPLE:  # a table has tens of thousands: a sample tells enough
+        points = points[np.linspace(0, len(points) - 1, CONTACT_SAMPLE).astype(int)]
+    found, normal, point, share = kernels.face_contact(
+        np.ascontiguousarray(points, np.float64),
+        np.asarray(s.box.center, np.float64),
+        np.ascontiguousarray(s.box.rotation, np.float64),
+        np.asarray(s.box.extent, np.float64) / 2,
+        float(config.contact),
+    )
+    return (normal, point, share) if found else None
+
+
+def _face_contact_numpy(s: Extracted, o: Extracted, config: RelationConfig):
+    """``_face_contact`` in numpy (the reference the compiled one is tested against)."""
     best = None
     R, half = s.box.rotation, s.box.extent / 2
     points = o.points
-    if len(points) > CONTACT_SAMPLE:  # a table has tens of thousands: a sample tells enough
+    if len(points) > CONTACT_SAMPLE:
         points = points[np.linspace(0, len(points) - 1, CONTACT_SAMPLE).astype(int)]
     local = (points - s.box.center) @ R  # o's points in s's box frame
     for k in range(3):

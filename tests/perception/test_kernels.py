@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.perception import kernels, obb, primitives, ransac
+from services.perception import kernels, obb, primitives, ransac, relations
 from services.perception.cloud import organized_cloud
 from services.perception.relations import fifth_percentile
 
@@ -240,3 +240,43 @@ def test_fill_counts_the_occupied_cells():
     ij = np.clip(((uv + p.box.extent[:2] / 2) / 0.02).astype(int), 0, shape - 1)
     want = len(np.unique(ij[:, 0] * shape[1] + ij[:, 1])) / float(np.prod(shape))
     assert primitives.fill(p) == want
+
+
+def _prim(points: np.ndarray, box: obb.Box) -> primitives.Extracted:
+    return primitives.Extracted("box", np.arange(len(points)), points, box, 0)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_face_contact_is_the_numpy_one(seed):
+    rng = np.random.default_rng(seed)
+    config = relations.RelationConfig()
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0] if seed % 2 else np.eye(3)
+    table = obb.Box(np.zeros(3), R, np.array([1.0, 0.8, 0.05]))
+    # an object's points on, beside or partly over the table's top face, within noise
+    n = int(rng.integers(50, 2000))
+    centre = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5), 0.025])
+    local = centre + rng.uniform(-0.05, 0.05, (n, 3)) * np.array([1, 1, 0])
+    local[:, 2] += rng.uniform(0, 0.1, n) * (rng.random(n) < 0.7) + rng.normal(0, 0.004, n)
+    points = local @ R.T
+    s, o = _prim(np.zeros((1, 3)), table), _prim(points, obb.pca_box(points))
+    got = relations._face_contact(s, o, config)
+    want = relations._face_contact_numpy(s, o, config)
+    assert (got is None) == (want is None)
+    if want is not None:
+        for g, w in zip(got, want, strict=True):
+            assert np.allclose(g, w, atol=1e-9)
+
+
+def test_face_contact_finds_the_top_face_a_box_rests_on():
+    config = relations.RelationConfig()
+    table = obb.Box(np.zeros(3), np.eye(3), np.array([1.0, 0.8, 0.05]))
+    rng = np.random.default_rng(0)
+    cup = rng.uniform([-0.05, -0.05, 0.026], [0.05, 0.05, 0.15], (800, 3))
+    got = relations._face_contact(_prim(np.zeros((1, 3)), table), _prim(cup, table), config)
+    assert got is not None
+    normal, point, share = got
+    assert np.allclose(normal, [0, 0, 1]) and share == 1.0
+    assert 0.025 < point[2] < 0.045  # the cup's points within 2 cm of the top
+    beside = cup + np.array([0.55, 0, -0.1])  # next to the table, reaching below its top
+    got = relations._face_contact(_prim(np.zeros((1, 3)), table), _prim(beside, table), config)
+    assert got is not None and np.allclose(got[0], [1, 0, 0])  # its side face: no support
