@@ -10,6 +10,7 @@ orthogonal, touching planes of one segment become a box (thesis 3.1: cuboids).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -339,13 +340,12 @@ def fill(p: Extracted, cell: float = 0.02) -> float:
     return int(np.count_nonzero(cells)) / float(np.prod(shape))
 
 
-def _sin_orthogonal(a: Extracted, b: Extracted, config: ExtractionConfig) -> float:
-    """How far from orthogonal two faces of a box may be fitted: a thin face (a plank's
-    edge, a few centimetres across) has a noisy normal, so more for it."""
-    thin = min(_width(a), _width(b)) < config.thin_face
-    return float(
-        np.sin(np.radians(config.thin_orthogonal_deg if thin else config.box_orthogonal_deg))
-    )
+def _sin_orthogonal(wa: float, wb: float, config: ExtractionConfig) -> float:
+    """How far from orthogonal two faces of a box may be fitted, by their narrower in-plane
+    extents: a thin face (a plank's edge, a few centimetres across) has a noisy normal, so
+    more for it."""
+    thin = min(wa, wb) < config.thin_face
+    return math.sin(math.radians(config.thin_orthogonal_deg if thin else config.box_orthogonal_deg))
 
 
 def _width(p: Extracted) -> float:
@@ -366,17 +366,22 @@ def assemble_boxes(prims: list[Extracted], config: ExtractionConfig) -> list[Ext
             fills[k] = fill(planes[k])
         return fills[k] >= config.face_fill  # the others stay planes
 
+    widths = [_width(p) for p in planes]  # once per plane, not per pair
+    by_segment: dict[int, list[int]] = {}
+    for k, p in enumerate(planes):
+        by_segment.setdefault(p.segment, []).append(k)
     used = [False] * len(planes)
     for i, a in enumerate(planes):
         if used[i]:
             continue
         group = [i]
-        for j in range(len(planes)):
-            if j == i or used[j] or planes[j].segment != a.segment:
+        for j in by_segment[a.segment]:  # in index order, as over all planes
+            if j == i or used[j]:
                 continue
             b = planes[j]
             orthogonal = all(
-                abs(planes[k].normal @ b.normal) < _sin_orthogonal(planes[k], b, config)
+                abs(float(planes[k].normal @ b.normal))
+                < _sin_orthogonal(widths[k], widths[j], config)
                 for k in group
             )
             if (
