@@ -778,3 +778,109 @@ def face_contact(points, center, R, half, contact):
             if touching > 0:
                 best_point = acc / touching
     return found, best_n, best_point, best_share
+
+
+@njit(cache=True, nogil=True)
+def _solve_small(M: np.ndarray, v: np.ndarray, out: np.ndarray) -> bool:
+    """M x = v for a small square M by Gaussian elimination with partial pivoting (as
+    ``_solve3``, any size); False when M is singular. M and v are overwritten."""
+    n = M.shape[0]
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(M[i, k]) > abs(M[p, k]):
+                p = i
+        if M[p, k] == 0.0:
+            return False
+        if p != k:
+            for j in range(n):
+                M[k, j], M[p, j] = M[p, j], M[k, j]
+            v[k], v[p] = v[p], v[k]
+        for i in range(k + 1, n):
+            f = M[i, k] / M[k, k]
+            for j in range(k, n):
+                M[i, j] -= f * M[k, j]
+            v[i] -= f * v[k]
+    for k in range(n - 1, -1, -1):
+        s = v[k]
+        for j in range(k + 1, n):
+            s -= M[k, j] * out[j]
+        out[k] = s / M[k, k]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def cylinder_refine(X, N, mask, axis):
+    """``ransac.refine_cylinder`` on the masked points in one pass: the axis least aligned
+    with their normals (the given one where they sweep no arc), centre and radius by a circle
+    fit across it. Returns (centre, axis, radius, ok); not ok where the circle's system is
+    singular (the caller falls back to numpy's least squares)."""
+    NtN = np.zeros((3, 3))
+    o = np.zeros(3)
+    m = 0
+    for p in range(X.shape[0]):
+        if mask[p]:
+            m += 1
+            for a in range(3):
+                o[a] += X[p, a]
+                for b in range(3):
+                    NtN[a, b] += N[p, a] * N[p, b]
+    o /= max(m, 1)
+    w, v = np.linalg.eigh(NtN)
+    ax = v[:, 0].copy() if w[1] > 4 * max(w[0], 1e-12) else axis.copy()
+    ax /= math.sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2])
+    rx, ry, rz = (1.0, 0.0, 0.0) if abs(ax[0]) < 0.9 else (0.0, 1.0, 0.0)
+    e1 = np.array([ax[1] * rz - ax[2] * ry, ax[2] * rx - ax[0] * rz, ax[0] * ry - ax[1] * rx])
+    norm = math.sqrt(e1 @ e1)
+    e1 = e1 / norm if norm > 1e-12 else np.zeros(3)
+    e2 = np.array([ax[1] * e1[2] - ax[2] * e1[1], ax[2] * e1[0] - ax[0] * e1[2],
+                   ax[0] * e1[1] - ax[1] * e1[0]])  # fmt: skip
+    Q = np.empty((m, 2))
+    k = 0
+    for p in range(X.shape[0]):
+        if mask[p]:
+            dx, dy, dz = X[p, 0] - o[0], X[p, 1] - o[1], X[p, 2] - o[2]
+            Q[k, 0] = dx * e1[0] + dy * e1[1] + dz * e1[2]
+            Q[k, 1] = dx * e2[0] + dy * e2[1] + dz * e2[2]
+            k += 1
+    cx, cy, r, ok = circle_fit(Q, 4)
+    return o + cx * e1 + cy * e2, ax, r, ok
+
+
+@njit(cache=True, nogil=True)
+def sphere_refine(X, mask):
+    """``ransac.refine_sphere`` on the masked points (algebraic fit, normal equations).
+    Returns (centre, radius, ok); not ok where the system is singular."""
+    M, v, x = np.zeros((4, 4)), np.zeros(4), np.zeros(4)
+    for p in range(X.shape[0]):
+        if mask[p]:
+            a = (2.0 * X[p, 0], 2.0 * X[p, 1], 2.0 * X[p, 2], 1.0)
+            b = X[p, 0] * X[p, 0] + X[p, 1] * X[p, 1] + X[p, 2] * X[p, 2]
+            for r in range(4):
+                v[r] += a[r] * b
+                for c in range(4):
+                    M[r, c] += a[r] * a[c]
+    if not _solve_small(M, v, x):
+        return np.zeros(3), 0.0, False
+    c = x[:3].copy()
+    return c, math.sqrt(max(x[3] + c[0] * c[0] + c[1] * c[1] + c[2] * c[2], 0.0)), True
+
+
+@njit(cache=True, nogil=True)
+def plane_band(X, normal, d, lo_q, hi_q):
+    """``np.percentile(X @ normal + d, (lo_q, hi_q))`` (linear interpolation, numpy's
+    rounding): the band of a plane's inliers (``primitives._flat_enough``)."""
+    n = X.shape[0]
+    s = np.empty(n)
+    for p in range(n):
+        s[p] = X[p, 0] * normal[0] + X[p, 1] * normal[1] + X[p, 2] * normal[2] + d
+    s.sort()
+    out = np.empty(2)
+    for k, q in enumerate((lo_q / 100, hi_q / 100)):
+        v = q * (n - 1)
+        i = min(max(math.floor(v), 0), n - 1)
+        j = min(i + 1, n - 1)
+        g = v - math.floor(v)
+        a, b = s[i], s[j]
+        out[k] = b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g
+    return out

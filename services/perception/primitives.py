@@ -228,7 +228,7 @@ def _flat_enough(prim: Extracted, config: ExtractionConfig) -> bool:
     measure: a face's box takes in a strip of its neighbour along the edge.)"""
     if prim.kind != "plane" or config.flat_ratio <= 0:
         return True
-    lo, hi = np.percentile(prim.points @ prim.normal + prim.d, (10, 90))
+    lo, hi = kernels.plane_band(prim.points, prim.normal, float(prim.d), 10.0, 90.0)
     band = hi - lo
     middle = np.sort(prim.box.extent)[1]
     return bool(band <= config.flat_band or middle >= config.flat_ratio * band)

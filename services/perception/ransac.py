@@ -184,7 +184,11 @@ def fit_cylinder(
         mask = kernels.cylinder_inliers(X, N, center, axis, radius, dist, cos_min)
         if mask.sum() < 10:
             return None
-        center, axis, radius = refine_cylinder(X[mask], N[mask], axis)
+        center, refined, radius, ok = kernels.cylinder_refine(X, N, mask, axis)
+        if ok:
+            axis = refined
+        else:  # a singular circle system: numpy's least squares
+            center, axis, radius = refine_cylinder(X[mask], N[mask], axis)
         if not r_min < radius < r_max:
             return None
     mask = kernels.cylinder_inliers(X, N, center, axis, radius, dist, cos_min)
@@ -206,7 +210,9 @@ def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32, subset=SUB
         mask = kernels.sphere_inliers(X, N, center, radius, dist, cos_min)
         if mask.sum() < 10:
             return None
-        center, radius = refine_sphere(X[mask])
+        center, radius, ok = kernels.sphere_refine(X, mask)
+        if not ok:
+            center, radius = refine_sphere(X[mask])
         if not r_min < radius < r_max:
             return None
     mask = kernels.sphere_inliers(X, N, center, radius, dist, cos_min)

@@ -280,3 +280,34 @@ def test_face_contact_finds_the_top_face_a_box_rests_on():
     beside = cup + np.array([0.55, 0, -0.1])  # next to the table, reaching below its top
     got = relations._face_contact(_prim(np.zeros((1, 3)), table), _prim(beside, table), config)
     assert got is not None and np.allclose(got[0], [1, 0, 0])  # its side face: no support
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_curved_refits_are_the_numpy_ones(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(20, 3000))
+    axis = ransac._unit(rng.normal(size=3))
+    e1 = ransac._unit(np.cross(axis, [1.0, 0, 0]))
+    e2 = np.cross(axis, e1)
+    phi = rng.uniform(0, rng.uniform(0.5, 6.0), n)  # an arc of the side, or nearly all of it
+    radial = np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2)
+    X = 0.05 * radial + np.outer(rng.uniform(0, 0.2, n), axis) + rng.normal(0, 0.002, (n, 3))
+    N = ransac._unit(radial + rng.normal(0, 0.05, (n, 3)))
+    mask = rng.random(n) < 0.8
+    centre, a, r, ok = kernels.cylinder_refine(X, N, mask, axis)
+    c_ref, a_ref, r_ref = ransac.refine_cylinder(X[mask], N[mask], axis)
+    assert ok and abs(r - r_ref) < 1e-9 and np.allclose(centre, c_ref, atol=1e-9)
+    assert np.allclose(a, a_ref, atol=1e-9) or np.allclose(a, -a_ref, atol=1e-9)
+    sphere = 0.07 * ransac._unit(rng.normal(size=(n, 3))) + rng.normal(0, 0.002, (n, 3))
+    centre, r, ok = kernels.sphere_refine(sphere, mask)
+    c_ref, r_ref = ransac.refine_sphere(sphere[mask])
+    assert ok and abs(r - r_ref) < 1e-9 and np.allclose(centre, c_ref, atol=1e-9)
+    assert abs(r - 0.07) < 0.01
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 999])
+def test_plane_band_is_numpys_percentile(n):
+    rng = np.random.default_rng(n)
+    X, normal = rng.normal(size=(n, 3)), ransac._unit(rng.normal(size=3))
+    got = kernels.plane_band(X, normal, 0.3, 10.0, 90.0)
+    assert np.allclose(got, np.percentile(X @ normal + 0.3, (10, 90)), atol=1e-12)
