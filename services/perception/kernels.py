@@ -874,13 +874,24 @@ def plane_band(X, normal, d, lo_q, hi_q):
     s = np.empty(n)
     for p in range(n):
         s[p] = X[p, 0] * normal[0] + X[p, 1] * normal[1] + X[p, 2] * normal[2] + d
-    s.sort()
+    qs = (lo_q / 100, hi_q / 100)
+    kth = np.empty(4, np.int64)
+    for k in range(2):
+        i = min(max(math.floor(qs[k] * (n - 1)), 0), n - 1)
+        kth[2 * k], kth[2 * k + 1] = i, min(i + 1, n - 1)
+    s = np.partition(s, np.unique(kth))  # the four order statistics in place, not a sort
     out = np.empty(2)
-    for k, q in enumerate((lo_q / 100, hi_q / 100)):
-        v = q * (n - 1)
-        i = min(max(math.floor(v), 0), n - 1)
-        j = min(i + 1, n - 1)
+    for k in range(2):
+        v = qs[k] * (n - 1)
         g = v - math.floor(v)
-        a, b = s[i], s[j]
+        a, b = s[kth[2 * k]], s[kth[2 * k + 1]]
         out[k] = b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g
+    return out
+
+
+@njit(cache=True, nogil=True)
+def plane_inliers(X, N, normal, d, dist, cos_min):
+    """``ransac.plane_residuals`` thresholded, as a mask."""
+    out = np.empty(X.shape[0], np.bool_)
+    _plane_inliers(X, N, normal[0], normal[1], normal[2], d, dist, cos_min, out)
     return out

@@ -78,6 +78,12 @@ def _member(pixels: np.ndarray, of: np.ndarray, size: int) -> np.ndarray:
     return grid[pixels]
 
 
+def _rows(A: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``A[index].astype(float64)`` of an (n, 3) array by np.take (a third of the time of
+    fancy indexing on a segment's tens of thousands of rows)."""
+    return np.take(A, index, axis=0).astype(np.float64, copy=False)
+
+
 def _largest_cluster(pixels: np.ndarray, cloud: Cloud) -> np.ndarray:
     """The largest connected component of the given pixels: Euclidean clustering where
     neighbours are pixels (8-connected on the grid) or the point set's graph neighbours."""
@@ -151,11 +157,12 @@ def extract_segment(
         least = max(config.tau_min, int(config.share_min * len(remaining)))
         if len(remaining) < least:
             continue
-        X, N = P[remaining].astype(np.float64), Nn[remaining].astype(np.float64)
+        # (np.take: a third of the time of fancy indexing rows of an (n, 3) array)
+        X, N = _rows(P, remaining), _rows(Nn, remaining)
         sample = np.arange(len(X))
         if len(X) > config.tau_max:
             sample = rng.choice(len(X), config.tau_max, replace=False)
-        Xs, Ns = X[sample], N[sample]
+        Xs, Ns = _rows(X, sample), _rows(N, sample)
         cam_dist = cloud.viewing_distance(remaining[sample[:200]])
         dist = config.dist_base + config.dist_quad * cam_dist**2
         angle = config.angle_deg + config.angle_per_m * max(0.0, cam_dist - 1.0)
@@ -199,15 +206,13 @@ def extract_segment(
             prim = _make(
                 best,
                 cluster[side],
-                P[cluster[side]].astype(np.float64),
+                _rows(P, cluster[side]),
                 segment,
                 cloud.viewer(cluster[side]),
             )
-            prim.pixels, prim.points = cluster, P[cluster].astype(np.float64)
+            prim.pixels, prim.points = cluster, _rows(P, cluster)
         else:
-            prim = _make(
-                best, cluster, P[cluster].astype(np.float64), segment, cloud.viewer(cluster)
-            )
+            prim = _make(best, cluster, _rows(P, cluster), segment, cloud.viewer(cluster))
         if not _flat_enough(prim, config):
             # a band of noisy depth, not a surface: what it held stays unexplained
             remaining = remaining[~_member(remaining, cluster, cloud.size)]
@@ -277,8 +282,7 @@ def _choose(
         if fit is None:
             continue
         if fit.kind == "plane":
-            res = ransac.plane_residuals(X, N, fit.normal, fit.d)
-            fit.inliers = (res[0] < dist) & (res[1] > cos_min)
+            fit.inliers = kernels.plane_inliers(X, N, fit.normal, fit.d, dist, cos_min)
         elif fit.kind == "cylinder":
             fit.inliers = kernels.cylinder_inliers(X, N, fit.center, fit.axis, fit.radius, dist,
                                                    cos_min)  # fmt: skip

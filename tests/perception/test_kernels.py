@@ -311,3 +311,13 @@ def test_plane_band_is_numpys_percentile(n):
     X, normal = rng.normal(size=(n, 3)), ransac._unit(rng.normal(size=3))
     got = kernels.plane_band(X, normal, 0.3, 10.0, 90.0)
     assert np.allclose(got, np.percentile(X @ normal + 0.3, (10, 90)), atol=1e-12)
+
+
+def test_plane_inliers_are_the_thresholded_residuals():
+    rng = np.random.default_rng(3)
+    X, N = rng.normal(0, 0.05, (5000, 3)), ransac._unit(rng.normal(size=(5000, 3)))
+    normal = ransac._unit(np.array([0.1, 0.2, 1.0]))
+    got = kernels.plane_inliers(X, N, normal, 0.01, 0.02, 0.5)
+    res = ransac.plane_residuals(X, N, normal, 0.01)
+    want = (res[0] < 0.02) & (res[1] > 0.5)
+    assert 100 < want.sum() < 4900 and (got == want).all()
