@@ -895,3 +895,27 @@ def plane_inliers(X, N, normal, d, dist, cos_min):
     out = np.empty(X.shape[0], np.bool_)
     _plane_inliers(X, N, normal[0], normal[1], normal[2], d, dist, cos_min, out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def region_spans(points, labels, n):
+    """The largest side of each region's axis-aligned box (labels 0..n-1, -1 outside):
+    ``np.ptp(points[labels == r], axis=0).max()`` of every region in one pass."""
+    lo = np.full((n, 3), np.inf)
+    hi = np.full((n, 3), -np.inf)
+    h, w = labels.shape
+    for i in range(h):
+        for j in range(w):
+            r = labels[i, j]
+            if r < 0:
+                continue
+            for a in range(3):
+                v = points[i, j, a]
+                if v < lo[r, a]:
+                    lo[r, a] = v
+                if v > hi[r, a]:
+                    hi[r, a] = v
+    out = np.zeros(n)
+    for r in range(n):
+        out[r] = max(hi[r, 0] - lo[r, 0], hi[r, 1] - lo[r, 1], hi[r, 2] - lo[r, 2])
+    return out

@@ -106,6 +106,7 @@ def split_by_colour(
     # the object each pixel seeds (-1: none, it joins the nearest one of its region); each
     # region worked on in its bounding box
     boxes = ndimage.find_objects(labels + 1, n)
+    span = kernels.region_spans(cloud.points, labels, n)  # each region's largest side, m
     seeds = np.full(labels.shape, -1, np.int32)
     split = []
     next_object = 1
@@ -114,10 +115,9 @@ def split_by_colour(
         rest_floor = max(config.part_min, config.rest_share * region_size[r])
         if len(ids) == 1 and region_size[r] - size[ids[0]] < rest_floor:
             continue  # one large part and little else: one object
-        box = _grown(boxes[r], labels.shape, 3)
-        points = cloud.points[box][labels[box] == r]
-        if np.ptp(points, axis=0).max() > config.object_size:
+        if span[r] > config.object_size:
             continue  # furniture: a counter's top and front are one piece, whatever colour
+        box = _grown(boxes[r], labels.shape, 3)
         group = _colour_groups(mean[ids], config.distinct)
         plain = [g for g in range(group.max() + 1) if (group == g).sum() <= config.parts_per_colour]
         sub = parts[box]

@@ -321,3 +321,12 @@ def test_plane_inliers_are_the_thresholded_residuals():
     res = ransac.plane_residuals(X, N, normal, 0.01)
     want = (res[0] < 0.02) & (res[1] > 0.5)
     assert 100 < want.sum() < 4900 and (got == want).all()
+
+
+def test_region_spans_are_each_regions_largest_side():
+    rng = np.random.default_rng(4)
+    points = rng.normal(0, 1, (60, 80, 3)).astype(np.float32)
+    labels = rng.integers(-1, 5, (60, 80)).astype(np.int32)
+    got = kernels.region_spans(points, labels, 5)
+    want = [np.ptp(points[labels == r], axis=0).max() for r in range(5)]
+    assert np.allclose(got, want) and min(want) > 1.0
