@@ -151,11 +151,24 @@ def _plane_inliers(X, N, nx, ny, nz, d, dist, cos_min, out):
 
 
 @njit(cache=True, nogil=True)
+def _columns(X, subset):
+    """(3, m): the ``subset`` rows of an (n, 3) array as contiguous columns (the hypotheses'
+    scoring loops then run over them in SIMD instead of gathering each point per hypothesis)."""
+    out = np.empty((3, subset.shape[0]))
+    for k in range(subset.shape[0]):
+        for a in range(3):
+            out[a, k] = X[subset[k], a]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def plane_ransac(X, N, triples, subset, dist, cos_min, refinements):
     """RANSAC plane: hypotheses from point triples scored on ``subset``, the best refined by
     least squares (smallest eigenvector of the inliers' covariance) ``refinements`` times.
     Returns (normal, d, inlier mask, found)."""
     best_score, best_n, best_d = -1, np.zeros(3), 0.0
+    Xt, Nt = _columns(X, subset), _columns(N, subset)
+    m = subset.shape[0]
     for h in range(triples.shape[0]):
         a, b, c = X[triples[h, 0]], X[triples[h, 1]], X[triples[h, 2]]
         ux, uy, uz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
@@ -167,12 +180,10 @@ def plane_ransac(X, N, triples, subset, dist, cos_min, refinements):
         nx, ny, nz = nx / norm, ny / norm, nz / norm
         d = -(nx * a[0] + ny * a[1] + nz * a[2])
         score = 0
-        for s in subset:
-            if (
-                abs(X[s, 0] * nx + X[s, 1] * ny + X[s, 2] * nz + d) < dist
-                and abs(N[s, 0] * nx + N[s, 1] * ny + N[s, 2] * nz) > cos_min
-            ):
-                score += 1
+        for k in range(m):  # branch-free over contiguous columns: vectorised
+            r = abs(Xt[0, k] * nx + Xt[1, k] * ny + Xt[2, k] * nz + d)
+            c = abs(Nt[0, k] * nx + Nt[1, k] * ny + Nt[2, k] * nz)
+            score += (r < dist) & (c > cos_min)
         if score > best_score:
             best_score = score
             best_n[0], best_n[1], best_n[2], best_d = nx, ny, nz, d
@@ -218,15 +229,16 @@ def _radial(vx: float, vy: float, vz: float, ax: float, ay: float, az: float):
 def score_cylinders(X, N, subset, centers, axes, radii, dist, cos_min):
     """Inliers of each cylinder hypothesis among ``subset``."""
     out = np.zeros(radii.shape[0], np.int64)
+    Xt, Nt = _columns(X, subset), _columns(N, subset)
     for h in range(radii.shape[0]):
         cx, cy, cz = centers[h, 0], centers[h, 1], centers[h, 2]
         ax, ay, az = axes[h, 0], axes[h, 1], axes[h, 2]
-        for s in subset:
-            rx, ry, rz, r = _radial(X[s, 0] - cx, X[s, 1] - cy, X[s, 2] - cz, ax, ay, az)
-            if r < 1e-9 or abs(r - radii[h]) >= dist:
-                continue
-            if abs(N[s, 0] * rx + N[s, 1] * ry + N[s, 2] * rz) / r > cos_min:
-                out[h] += 1
+        score = 0
+        for k in range(subset.shape[0]):  # branch-free: vectorised
+            rx, ry, rz, r = _radial(Xt[0, k] - cx, Xt[1, k] - cy, Xt[2, k] - cz, ax, ay, az)
+            cos = abs(Nt[0, k] * rx + Nt[1, k] * ry + Nt[2, k] * rz) / max(r, 1e-9)
+            score += (r >= 1e-9) & (abs(r - radii[h]) < dist) & (cos > cos_min)
+        out[h] = score
     return out
 
 
@@ -234,14 +246,16 @@ def score_cylinders(X, N, subset, centers, axes, radii, dist, cos_min):
 def score_spheres(X, N, subset, centers, radii, dist, cos_min):
     """Inliers of each sphere hypothesis among ``subset``."""
     out = np.zeros(radii.shape[0], np.int64)
+    Xt, Nt = _columns(X, subset), _columns(N, subset)
     for h in range(radii.shape[0]):
-        for s in subset:
-            vx, vy, vz = X[s, 0] - centers[h, 0], X[s, 1] - centers[h, 1], X[s, 2] - centers[h, 2]
+        cx, cy, cz = centers[h, 0], centers[h, 1], centers[h, 2]
+        score = 0
+        for k in range(subset.shape[0]):  # branch-free: vectorised
+            vx, vy, vz = Xt[0, k] - cx, Xt[1, k] - cy, Xt[2, k] - cz
             r = math.sqrt(vx * vx + vy * vy + vz * vz)
-            if r < 1e-9 or abs(r - radii[h]) >= dist:
-                continue
-            if abs(N[s, 0] * vx + N[s, 1] * vy + N[s, 2] * vz) / r > cos_min:
-                out[h] += 1
+            cos = abs(Nt[0, k] * vx + Nt[1, k] * vy + Nt[2, k] * vz) / max(r, 1e-9)
+            score += (r >= 1e-9) & (abs(r - radii[h]) < dist) & (cos > cos_min)
+        out[h] = score
     return out
 
 

@@ -330,3 +330,37 @@ def test_region_spans_are_each_regions_largest_side():
     got = kernels.region_spans(points, labels, 5)
     want = [np.ptp(points[labels == r], axis=0).max() for r in range(5)]
     assert np.allclose(got, want) and min(want) > 1.0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_hypothesis_scores_are_the_thresholded_residuals(seed):
+    rng = np.random.default_rng(seed)
+    n = 3000
+    X = rng.normal(0, 0.1, (n, 3))
+    N = ransac._unit(X + rng.normal(0, 0.3, (n, 3)))  # about radial: a noisy ball
+    subset = rng.integers(0, n, 500)
+    centers, radii = rng.normal(0, 0.02, (8, 3)), rng.uniform(0.05, 0.2, 8)
+    axes = ransac._unit(rng.normal(size=(8, 3)))
+    dist, cos_min = 0.02, 0.8
+    Xs, Ns = X[subset], N[subset]
+    want_c = [
+        int(np.count_nonzero(np.logical_and(*_below(ransac.cylinder_residuals(Xs, Ns, c, a, r),
+                                                     dist, cos_min))))
+        for c, a, r in zip(centers, axes, radii, strict=True)
+    ]  # fmt: skip
+    want_s = [
+        int(np.count_nonzero(np.logical_and(*_below(ransac.sphere_residuals(Xs, Ns, c, r),
+                                                     dist, cos_min))))
+        for c, r in zip(centers, radii, strict=True)
+    ]  # fmt: skip
+    got_c = kernels.score_cylinders(X, N, subset, centers, axes, radii, dist, cos_min)
+    got_s = kernels.score_spheres(X, N, subset, centers, radii, dist, cos_min)
+    assert list(got_c) == want_c and list(got_s) == want_s and max(want_s) > 20
+    # one hypothesis (the plane through three points), no refinement: that plane
+    n0 = ransac._unit(np.cross(X[1] - X[0], X[2] - X[0]))
+    found_n, d, _, found = kernels.plane_ransac(X, N, np.array([[0, 1, 2]]), subset, dist, 0.0, 0)
+    assert found and abs(abs(found_n @ n0) - 1.0) < 1e-12 and abs(found_n @ X[2] + d) < 1e-12
+
+
+def _below(res, dist, cos_min):
+    return res[0] < dist, res[1] > cos_min
