@@ -933,3 +933,65 @@ def region_spans(points, labels, n):
     for r in range(n):
         out[r] = max(hi[r, 0] - lo[r, 0], hi[r, 1] - lo[r, 1], hi[r, 2] - lo[r, 2])
     return out
+
+
+@njit(cache=True, nogil=True)
+def normal_arc(N, e1, e2):
+    """``ransac.cylinder_arc`` with the axis' frame (e1, e2) given: the angle (rad) the
+    normals sweep around the axis, 2π less the largest gap between their angles. The gap by
+    buckets (the maximum-gap algorithm: n buckets over the angles' range, a gap wider than
+    a bucket runs between buckets' ends), not a sort: linear in the points."""
+    n = N.shape[0]
+    if n < 2:
+        return 0.0
+    two_pi = 2 * np.pi
+    ang = np.empty(n)
+    for p in range(n):
+        a = math.atan2(N[p, 0] * e2[0] + N[p, 1] * e2[1] + N[p, 2] * e2[2],
+                       N[p, 0] * e1[0] + N[p, 1] * e1[1] + N[p, 2] * e1[2])  # fmt: skip
+        ang[p] = np.mod(a, two_pi)
+    lo, hi = ang.min(), ang.max()
+    gap = lo + two_pi - hi  # across 0
+    if hi > lo:
+        width = (hi - lo) / n
+        b_lo = np.full(n, np.inf)
+        b_hi = np.full(n, -np.inf)
+        for p in range(n):
+            b = min(int((ang[p] - lo) / width), n - 1)
+            b_lo[b] = min(b_lo[b], ang[p])
+            b_hi[b] = max(b_hi[b], ang[p])
+        last = b_hi[0]
+        for b in range(1, n):
+            if b_lo[b] <= b_hi[b]:
+                gap = max(gap, b_lo[b] - last)
+                last = b_hi[b]
+    return two_pi - gap
+
+
+@njit(cache=True, nogil=True)
+def normal_spread(N):
+    """``ransac.sphere_spread`` in one pass: the smaller angular spread (deg) of the normals
+    across their two main directions."""
+    n = N.shape[0]
+    if n < 3:
+        return 0.0
+    m = np.zeros(3)
+    for p in range(n):
+        for a in range(3):
+            m[a] += N[p, a]
+    m /= n
+    norm = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+    m = m / norm if norm > 1e-12 else np.zeros(3)
+    C = np.zeros((3, 3))
+    for p in range(n):
+        t = N[p, 0] * m[0] + N[p, 1] * m[1] + N[p, 2] * m[2]
+        d0, d1, d2 = N[p, 0] - t * m[0], N[p, 1] - t * m[1], N[p, 2] - t * m[2]
+        C[0, 0] += d0 * d0
+        C[0, 1] += d0 * d1
+        C[0, 2] += d0 * d2
+        C[1, 1] += d1 * d1
+        C[1, 2] += d1 * d2
+        C[2, 2] += d2 * d2
+    C[1, 0], C[2, 0], C[2, 1] = C[0, 1], C[0, 2], C[1, 2]
+    w = np.linalg.eigvalsh(C / n)
+    return math.degrees(math.asin(math.sqrt(min(max(w[1], 0.0), 1.0))))

@@ -290,12 +290,14 @@ def _choose(
             fit.inliers = kernels.sphere_inliers(X, N, fit.center, fit.radius, dist, cos_min)
         if (
             fit.kind == "cylinder"
-            and ransac.cylinder_arc(N[fit.inliers], fit.axis) < config.min_arc_deg
+            and ransac.cylinder_arc(np.compress(fit.inliers, N, axis=0), fit.axis)
+            < config.min_arc_deg
         ):
             continue
         if (
             fit.kind == "sphere"
-            and ransac.sphere_spread(N[fit.inliers]) < config.min_sphere_spread_deg
+            and ransac.sphere_spread(np.compress(fit.inliers, N, axis=0))
+            < config.min_sphere_spread_deg
         ):
             continue
         scored.append(fit)

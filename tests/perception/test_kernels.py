@@ -364,3 +364,21 @@ def test_hypothesis_scores_are_the_thresholded_residuals(seed):
 
 def _below(res, dist, cos_min):
     return res[0] < dist, res[1] > cos_min
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_normal_arc_and_spread_are_the_numpy_ones(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(0, 5000)) if seed else 1
+    axis = ransac._unit(rng.normal(size=3)) if seed % 3 else np.array([1.0, 0, 0])
+    arc = rng.uniform(0.1, 2 * np.pi)  # normals over an arc of the axis, noisy
+    e1 = ransac._unit(np.cross(axis, rng.normal(size=3)))
+    phi = rng.uniform(0, arc, n)
+    N = np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), np.cross(axis, e1))
+    N = ransac._unit(N + rng.normal(0, 0.02, (n, 3)))
+    got = ransac.cylinder_arc(N, axis)
+    assert got == pytest.approx(ransac.cylinder_arc_numpy(N, axis), abs=1e-9)
+    spread = ransac.sphere_spread(N)
+    assert spread == pytest.approx(ransac.sphere_spread_numpy(N), abs=1e-7)
+    if n > 1000:
+        assert abs(got - np.degrees(arc)) < 10
