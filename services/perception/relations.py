@@ -12,6 +12,7 @@ edges leads down to ρ; the rest are unstable — hints of missing data.
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -73,7 +74,7 @@ def spatial_edges(
 
 
 def is_support_surface(p: Extracted, config: RelationConfig) -> bool:
-    return p.kind == "plane" and abs(p.normal @ UP) > np.cos(np.radians(config.horizontal_deg))
+    return p.kind == "plane" and abs(p.normal[2]) > math.cos(math.radians(config.horizontal_deg))
 
 
 def _rests_on(obj: Extracted, surface: Extracted, config: RelationConfig) -> bool:
@@ -100,18 +101,26 @@ def fifth_percentile(x: np.ndarray) -> float:
     return b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g
 
 
-def _face_contact(s: Extracted, o: Extracted, config: RelationConfig):
+def _contact_sample(o: Extracted) -> np.ndarray:
+    """The points of ``o`` a contact looks at: a table has tens of thousands, a sample of
+    ``CONTACT_SAMPLE`` tells enough."""
+    points = o.points
+    if len(points) > CONTACT_SAMPLE:
+        points = points[np.linspace(0, len(points) - 1, CONTACT_SAMPLE).astype(int)]
+    return np.ascontiguousarray(points, np.float64)
+
+
+def _face_contact(
+    s: Extracted, o: Extracted, config: RelationConfig, points: np.ndarray | None = None
+):
     """The face of ``s``'s OBB that ``o`` touches from outside: (outward normal, contact point,
     overlap share) of the best one, or None. ``o``'s points must lie beyond the face plane (up
     to noise; all of them, not only those over the face: a taller box beside ``s`` touches
     its top face's edge but does not rest on it), come within the contact distance of it,
     and a share of them must project onto the face (compiled: 0.1 ms a pair in numpy, a
-    hundred pairs on a cluttered real frame)."""
-    points = o.points
-    if len(points) > CONTACT_SAMPLE:  # a table has tens of thousands: a sample tells enough
-        points = points[np.linspace(0, len(points) - 1, CONTACT_SAMPLE).astype(int)]
+    hundred pairs on a cluttered real frame). ``points``: ``_contact_sample(o)``, if at hand."""
     found, normal, point, share = kernels.face_contact(
-        np.ascontiguousarray(points, np.float64),
+        _contact_sample(o) if points is None else points,
         np.asarray(s.box.center, np.float64),
         np.ascontiguousarray(s.box.rotation, np.float64),
         np.asarray(s.box.extent, np.float64) / 2,
@@ -156,9 +165,17 @@ def support_edges(
     """(supporter, supported, contact point) for the pairs in contact."""
     cos_lateral = np.cos(np.radians(config.lateral_deg))
     edges = []
+    surface = [is_support_surface(p, config) for p in prims]  # once a primitive, not a pair
+    samples: dict[int, np.ndarray] = {}
+
+    def sample(k: int) -> np.ndarray:
+        if k not in samples:
+            samples[k] = _contact_sample(prims[k])
+        return samples[k]
+
     for i, j in spatial:
         a, b = prims[i], prims[j]
-        sa, sb = is_support_surface(a, config), is_support_surface(b, config)
+        sa, sb = surface[i], surface[j]
         if sa and not sb and _rests_on(b, a, config):
             edges.append((i, j, np.append(b.box.center[:2], lowest_point(b))))
             continue
@@ -167,7 +184,10 @@ def support_edges(
             continue
         # the separating plane at the contact: the touched face of one OBB; its outward normal
         # points from the primitive below to the one above when it is close to vertical
-        contacts = [(i, j, _face_contact(a, b, config)), (j, i, _face_contact(b, a, config))]
+        contacts = [
+            (i, j, _face_contact(a, b, config, sample(j))),
+            (j, i, _face_contact(b, a, config, sample(i))),
+        ]
         contacts = [(x, y, c) for x, y, c in contacts if c is not None]
         if not contacts:
             continue
