@@ -121,7 +121,12 @@ def split_by_colour(
         group = _colour_groups(mean[ids], config.distinct)
         plain = [g for g in range(group.max() + 1) if (group == g).sum() <= config.parts_per_colour]
         sub = parts[box]
-        plain_px = np.isin(sub, ids[np.isin(group, plain)])
+        # each part's object (0: none) looked up per pixel, not np.isin's sort per object
+        objects = np.zeros(m + 1, np.int32)
+        for k, g in enumerate(plain):
+            objects[ids[group == g]] = next_object + k
+        own = objects[sub]
+        plain_px = own > 0
         # the rest: the region away from the plain objects (not the edges between them)
         rest_px = (labels[box] == r) & ~ndimage.binary_dilation(plain_px, iterations=3)
         has_rest = rest_px.sum() >= rest_floor
@@ -129,9 +134,8 @@ def split_by_colour(
             continue  # one object
         split.append((r, box))
         sub_seeds = seeds[box]
-        for g in plain:
-            sub_seeds[np.isin(sub, ids[group == g])] = next_object
-            next_object += 1
+        sub_seeds[plain_px] = own[plain_px]
+        next_object += len(plain)
         if has_rest:
             sub_seeds[rest_px] = next_object
             next_object += 1
