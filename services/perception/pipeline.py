@@ -27,7 +27,7 @@ from schemas import (
     SupportEdge,
 )
 from services.common.sat import pairs_overlap
-from services.perception import kernels, relations
+from services.perception import kernels, ransac, relations
 from services.perception.affordances import AffordanceOut, Hand, affordances
 from services.perception.cloud import organized_cloud
 from services.perception.obb import Box, intersect
@@ -41,6 +41,7 @@ from services.perception.primitives import (
 from services.perception.segmentation import segment
 
 MAX_INLIERS = 2000
+UP = np.array([0.0, 0.0, 1.0])
 
 
 @dataclass
@@ -125,6 +126,8 @@ class Perception:
             *(np.stack([getattr(b, k) for b in both]) for k in ("rotation", "center", "extent"))
         )
         kernels.face_contact(cup.corners(), table.center, table.rotation, table.extent / 2, 0.02)
+        ransac.cylinder_arc(np.eye(3), UP)  # a curved fit's tests (the frame above may have none)
+        ransac.sphere_spread(np.eye(3))
 
     def perceive(
         self,
