@@ -151,11 +151,24 @@ def _plane_inliers(X, N, nx, ny, nz, d, dist, cos_min, out):
 
 
 @njit(cache=True, nogil=True)
+def _columns(X, subset):
+    """(3, m): the ``subset`` rows of an (n, 3) array as contiguous columns (the hypotheses'
+    scoring loops then run over them in SIMD instead of gathering each point per hypothesis)."""
+    out = np.empty((3, subset.shape[0]))
+    for k in range(subset.shape[0]):
+        for a in range(3):
+            out[a, k] = X[subset[k], a]
+    return out
+
+
+@njit(cache=True, nogil=True)
 def plane_ransac(X, N, triples, subset, dist, cos_min, refinements):
     """RANSAC plane: hypotheses from point triples scored on ``subset``, the best refined by
     least squares (smallest eigenvector of the inliers' covariance) ``refinements`` times.
     Returns (normal, d, inlier mask, found)."""
     best_score, best_n, best_d = -1, np.zeros(3), 0.0
+    Xt, Nt = _columns(X, subset), _columns(N, subset)
+    m = subset.shape[0]
     for h in range(triples.shape[0]):
         a, b, c = X[triples[h, 0]], X[triples[h, 1]], X[triples[h, 2]]
         ux, uy, uz = b[0] - a[0], b[1] - a[1], b[2] - a[2]
@@ -167,12 +180,10 @@ def plane_ransac(X, N, triples, subset, dist, cos_min, refinements):
         nx, ny, nz = nx / norm, ny / norm, nz / norm
         d = -(nx * a[0] + ny * a[1] + nz * a[2])
         score = 0
-        for s in subset:
-            if (
-                abs(X[s, 0] * nx + X[s, 1] * ny + X[s, 2] * nz + d) < dist
-                and abs(N[s, 0] * nx + N[s, 1] * ny + N[s, 2] * nz) > cos_min
-            ):
-                score += 1
+        for k in range(m):  # branch-free over contiguous columns: vectorised
+            r = abs(Xt[0, k] * nx + Xt[1, k] * ny + Xt[2, k] * nz + d)
+            c = abs(Nt[0, k] * nx + Nt[1, k] * ny + Nt[2, k] * nz)
+            score += (r < dist) & (c > cos_min)
         if score > best_score:
             best_score = score
             best_n[0], best_n[1], best_n[2], best_d = nx, ny, nz, d
@@ -218,15 +229,16 @@ def _radial(vx: float, vy: float, vz: float, ax: float, ay: float, az: float):
 def score_cylinders(X, N, subset, centers, axes, radii, dist, cos_min):
     """Inliers of each cylinder hypothesis among ``subset``."""
     out = np.zeros(radii.shape[0], np.int64)
+    Xt, Nt = _columns(X, subset), _columns(N, subset)
     for h in range(radii.shape[0]):
         cx, cy, cz = centers[h, 0], centers[h, 1], centers[h, 2]
         ax, ay, az = axes[h, 0], axes[h, 1], axes[h, 2]
-        for s in subset:
-            rx, ry, rz, r = _radial(X[s, 0] - cx, X[s, 1] - cy, X[s, 2] - cz, ax, ay, az)
-            if r < 1e-9 or abs(r - radii[h]) >= dist:
-                continue
-            if abs(N[s, 0] * rx + N[s, 1] * ry + N[s, 2] * rz) / r > cos_min:
-                out[h] += 1
+        score = 0
+        for k in range(subset.shape[0]):  # branch-free: vectorised
+            rx, ry, rz, r = _radial(Xt[0, k] - cx, Xt[1, k] - cy, Xt[2, k] - cz, ax, ay, az)
+            cos = abs(Nt[0, k] * rx + Nt[1, k] * ry + Nt[2, k] * rz) / max(r, 1e-9)
+            score += (r >= 1e-9) & (abs(r - radii[h]) < dist) & (cos > cos_min)
+        out[h] = score
     return out
 
 
@@ -234,14 +246,16 @@ def score_cylinders(X, N, subset, centers, axes, radii, dist, cos_min):
 def score_spheres(X, N, subset, centers, radii, dist, cos_min):
     """Inliers of each sphere hypothesis among ``subset``."""
     out = np.zeros(radii.shape[0], np.int64)
+    Xt, Nt = _columns(X, subset), _columns(N, subset)
     for h in range(radii.shape[0]):
-        for s in subset:
-            vx, vy, vz = X[s, 0] - centers[h, 0], X[s, 1] - centers[h, 1], X[s, 2] - centers[h, 2]
+        cx, cy, cz = centers[h, 0], centers[h, 1], centers[h, 2]
+        score = 0
+        for k in range(subset.shape[0]):  # branch-free: vectorised
+            vx, vy, vz = Xt[0, k] - cx, Xt[1, k] - cy, Xt[2, k] - cz
             r = math.sqrt(vx * vx + vy * vy + vz * vz)
-            if r < 1e-9 or abs(r - radii[h]) >= dist:
-                continue
-            if abs(N[s, 0] * vx + N[s, 1] * vy + N[s, 2] * vz) / r > cos_min:
-                out[h] += 1
+            cos = abs(Nt[0, k] * vx + Nt[1, k] * vy + Nt[2, k] * vz) / max(r, 1e-9)
+            score += (r >= 1e-9) & (abs(r - radii[h]) < dist) & (cos > cos_min)
+        out[h] = score
     return out
 
 
@@ -704,3 +718,280 @@ def rectangle_span(Q: np.ndarray, d1: np.ndarray) -> tuple[float, float, float, 
         v = -Q[i, 0] * d1[1] + Q[i, 1] * d1[0]
         u0, u1, v0, v1 = min(u0, u), max(u1, u), min(v0, v), max(v1, v)
     return u0, u1, v0, v1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _fifth(x: np.ndarray) -> float:
+    """``np.percentile(x, 5)`` of a non-empty array (linear interpolation, numpy's rounding):
+    ``relations.fifth_percentile`` on a sorted copy."""
+    s = np.sort(x)
+    n = s.shape[0]
+    v = 0.05 * n + 0.95 - 1
+    i = min(max(math.floor(v), 0), n - 1)
+    j = min(i + 1, n - 1)
+    g = v - math.floor(v)
+    a, b = s[i], s[j]
+    return b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g
+
+
+@njit(cache=True, nogil=True)
+def face_contact(points, center, R, half, contact):
+    """``relations._face_contact`` on one primitive's (sampled) points against another's box
+    (centre, rotation with the axes as columns, half extents). Returns (found, outward normal,
+    contact point, overlap share) of the best touched face."""
+    n = points.shape[0]
+    local = np.empty((n, 3))
+    for p in range(n):
+        dx, dy, dz = points[p, 0] - center[0], points[p, 1] - center[1], points[p, 2] - center[2]
+        for k in range(3):
+            local[p, k] = dx * R[0, k] + dy * R[1, k] + dz * R[2, k]
+    found, best_share = False, 0.0
+    best_n, best_point = np.zeros(3), np.zeros(3)
+    over = np.empty(n, np.bool_)
+    for k in range(3):
+        k1, k2 = (k + 1) % 3, (k + 2) % 3
+        count = 0
+        for p in range(n):
+            over[p] = (abs(local[p, k1]) <= half[k1] + contact) and (
+                abs(local[p, k2]) <= half[k2] + contact
+            )
+            count += over[p]
+        share = count / n
+        if share < 0.05:
+            continue
+        for sign in (1.0, -1.0):
+            d = np.empty(count)
+            m = 0
+            for p in range(n):
+                if over[p]:
+                    d[m] = sign * local[p, k] - half[k]
+                    m += 1
+            if _fifth(d) < -contact / 2 or d.min() > contact:
+                continue
+            beyond = np.empty(n)
+            for p in range(n):
+                beyond[p] = sign * local[p, k] - half[k]
+            if _fifth(beyond) < -contact / 2:
+                continue  # the other reaches past the face's plane beside it
+            if found and share <= best_share:
+                continue
+            found, best_share = True, share
+            for a in range(3):
+                best_n[a] = sign * R[a, k]
+                best_point[a] = center[a] + best_n[a] * half[k]
+            touching = 0
+            acc = np.zeros(3)
+            m = 0
+            for p in range(n):
+                if over[p]:
+                    if abs(d[m]) < contact:
+                        touching += 1
+                        for a in range(3):
+                            acc[a] += points[p, a]
+                    m += 1
+            if touching > 0:
+                best_point = acc / touching
+    return found, best_n, best_point, best_share
+
+
+@njit(cache=True, nogil=True)
+def _solve_small(M: np.ndarray, v: np.ndarray, out: np.ndarray) -> bool:
+    """M x = v for a small square M by Gaussian elimination with partial pivoting (as
+    ``_solve3``, any size); False when M is singular. M and v are overwritten."""
+    n = M.shape[0]
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(M[i, k]) > abs(M[p, k]):
+                p = i
+        if M[p, k] == 0.0:
+            return False
+        if p != k:
+            for j in range(n):
+                M[k, j], M[p, j] = M[p, j], M[k, j]
+            v[k], v[p] = v[p], v[k]
+        for i in range(k + 1, n):
+            f = M[i, k] / M[k, k]
+            for j in range(k, n):
+                M[i, j] -= f * M[k, j]
+            v[i] -= f * v[k]
+    for k in range(n - 1, -1, -1):
+        s = v[k]
+        for j in range(k + 1, n):
+            s -= M[k, j] * out[j]
+        out[k] = s / M[k, k]
+    return True
+
+
+@njit(cache=True, nogil=True)
+def cylinder_refine(X, N, mask, axis):
+    """``ransac.refine_cylinder`` on the masked points in one pass: the axis least aligned
+    with their normals (the given one where they sweep no arc), centre and radius by a circle
+    fit across it. Returns (centre, axis, radius, ok); not ok where the circle's system is
+    singular (the caller falls back to numpy's least squares)."""
+    NtN = np.zeros((3, 3))
+    o = np.zeros(3)
+    m = 0
+    for p in range(X.shape[0]):
+        if mask[p]:
+            m += 1
+            for a in range(3):
+                o[a] += X[p, a]
+                for b in range(3):
+                    NtN[a, b] += N[p, a] * N[p, b]
+    o /= max(m, 1)
+    w, v = np.linalg.eigh(NtN)
+    ax = v[:, 0].copy() if w[1] > 4 * max(w[0], 1e-12) else axis.copy()
+    ax /= math.sqrt(ax[0] * ax[0] + ax[1] * ax[1] + ax[2] * ax[2])
+    rx, ry, rz = (1.0, 0.0, 0.0) if abs(ax[0]) < 0.9 else (0.0, 1.0, 0.0)
+    e1 = np.array([ax[1] * rz - ax[2] * ry, ax[2] * rx - ax[0] * rz, ax[0] * ry - ax[1] * rx])
+    norm = math.sqrt(e1 @ e1)
+    e1 = e1 / norm if norm > 1e-12 else np.zeros(3)
+    e2 = np.array([ax[1] * e1[2] - ax[2] * e1[1], ax[2] * e1[0] - ax[0] * e1[2],
+                   ax[0] * e1[1] - ax[1] * e1[0]])  # fmt: skip
+    Q = np.empty((m, 2))
+    k = 0
+    for p in range(X.shape[0]):
+        if mask[p]:
+            dx, dy, dz = X[p, 0] - o[0], X[p, 1] - o[1], X[p, 2] - o[2]
+            Q[k, 0] = dx * e1[0] + dy * e1[1] + dz * e1[2]
+            Q[k, 1] = dx * e2[0] + dy * e2[1] + dz * e2[2]
+            k += 1
+    cx, cy, r, ok = circle_fit(Q, 4)
+    return o + cx * e1 + cy * e2, ax, r, ok
+
+
+@njit(cache=True, nogil=True)
+def sphere_refine(X, mask):
+    """``ransac.refine_sphere`` on the masked points (algebraic fit, normal equations).
+    Returns (centre, radius, ok); not ok where the system is singular."""
+    M, v, x = np.zeros((4, 4)), np.zeros(4), np.zeros(4)
+    for p in range(X.shape[0]):
+        if mask[p]:
+            a = (2.0 * X[p, 0], 2.0 * X[p, 1], 2.0 * X[p, 2], 1.0)
+            b = X[p, 0] * X[p, 0] + X[p, 1] * X[p, 1] + X[p, 2] * X[p, 2]
+            for r in range(4):
+                v[r] += a[r] * b
+                for c in range(4):
+                    M[r, c] += a[r] * a[c]
+    if not _solve_small(M, v, x):
+        return np.zeros(3), 0.0, False
+    c = x[:3].copy()
+    return c, math.sqrt(max(x[3] + c[0] * c[0] + c[1] * c[1] + c[2] * c[2], 0.0)), True
+
+
+@njit(cache=True, nogil=True)
+def plane_band(X, normal, d, lo_q, hi_q):
+    """``np.percentile(X @ normal + d, (lo_q, hi_q))`` (linear interpolation, numpy's
+    rounding): the band of a plane's inliers (``primitives._flat_enough``)."""
+    n = X.shape[0]
+    s = np.empty(n)
+    for p in range(n):
+        s[p] = X[p, 0] * normal[0] + X[p, 1] * normal[1] + X[p, 2] * normal[2] + d
+    qs = (lo_q / 100, hi_q / 100)
+    kth = np.empty(4, np.int64)
+    for k in range(2):
+        i = min(max(math.floor(qs[k] * (n - 1)), 0), n - 1)
+        kth[2 * k], kth[2 * k + 1] = i, min(i + 1, n - 1)
+    s = np.partition(s, np.unique(kth))  # the four order statistics in place, not a sort
+    out = np.empty(2)
+    for k in range(2):
+        v = qs[k] * (n - 1)
+        g = v - math.floor(v)
+        a, b = s[kth[2 * k]], s[kth[2 * k + 1]]
+        out[k] = b - (b - a) * (1 - g) if g >= 0.5 else a + (b - a) * g
+    return out
+
+
+@njit(cache=True, nogil=True)
+def plane_inliers(X, N, normal, d, dist, cos_min):
+    """``ransac.plane_residuals`` thresholded, as a mask."""
+    out = np.empty(X.shape[0], np.bool_)
+    _plane_inliers(X, N, normal[0], normal[1], normal[2], d, dist, cos_min, out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def region_spans(points, labels, n):
+    """The largest side of each region's axis-aligned box (labels 0..n-1, -1 outside):
+    ``np.ptp(points[labels == r], axis=0).max()`` of every region in one pass."""
+    lo = np.full((n, 3), np.inf)
+    hi = np.full((n, 3), -np.inf)
+    h, w = labels.shape
+    for i in range(h):
+        for j in range(w):
+            r = labels[i, j]
+            if r < 0:
+                continue
+            for a in range(3):
+                v = points[i, j, a]
+                if v < lo[r, a]:
+                    lo[r, a] = v
+                if v > hi[r, a]:
+                    hi[r, a] = v
+    out = np.zeros(n)
+    for r in range(n):
+        out[r] = max(hi[r, 0] - lo[r, 0], hi[r, 1] - lo[r, 1], hi[r, 2] - lo[r, 2])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def normal_arc(N, e1, e2):
+    """``ransac.cylinder_arc`` with the axis' frame (e1, e2) given: the angle (rad) the
+    normals sweep around the axis, 2π less the largest gap between their angles. The gap by
+    buckets (the maximum-gap algorithm: n buckets over the angles' range, a gap wider than
+    a bucket runs between buckets' ends), not a sort: linear in the points."""
+    n = N.shape[0]
+    if n < 2:
+        return 0.0
+    two_pi = 2 * np.pi
+    ang = np.empty(n)
+    for p in range(n):
+        a = math.atan2(N[p, 0] * e2[0] + N[p, 1] * e2[1] + N[p, 2] * e2[2],
+                       N[p, 0] * e1[0] + N[p, 1] * e1[1] + N[p, 2] * e1[2])  # fmt: skip
+        ang[p] = np.mod(a, two_pi)
+    lo, hi = ang.min(), ang.max()
+    gap = lo + two_pi - hi  # across 0
+    if hi > lo:
+        width = (hi - lo) / n
+        b_lo = np.full(n, np.inf)
+        b_hi = np.full(n, -np.inf)
+        for p in range(n):
+            b = min(int((ang[p] - lo) / width), n - 1)
+            b_lo[b] = min(b_lo[b], ang[p])
+            b_hi[b] = max(b_hi[b], ang[p])
+        last = b_hi[0]
+        for b in range(1, n):
+            if b_lo[b] <= b_hi[b]:
+                gap = max(gap, b_lo[b] - last)
+                last = b_hi[b]
+    return two_pi - gap
+
+
+@njit(cache=True, nogil=True)
+def normal_spread(N):
+    """``ransac.sphere_spread`` in one pass: the smaller angular spread (deg) of the normals
+    across their two main directions."""
+    n = N.shape[0]
+    if n < 3:
+        return 0.0
+    m = np.zeros(3)
+    for p in range(n):
+        for a in range(3):
+            m[a] += N[p, a]
+    m /= n
+    norm = math.sqrt(m[0] * m[0] + m[1] * m[1] + m[2] * m[2])
+    m = m / norm if norm > 1e-12 else np.zeros(3)
+    C = np.zeros((3, 3))
+    for p in range(n):
+        t = N[p, 0] * m[0] + N[p, 1] * m[1] + N[p, 2] * m[2]
+        d0, d1, d2 = N[p, 0] - t * m[0], N[p, 1] - t * m[1], N[p, 2] - t * m[2]
+        C[0, 0] += d0 * d0
+        C[0, 1] += d0 * d1
+        C[0, 2] += d0 * d2
+        C[1, 1] += d1 * d1
+        C[1, 2] += d1 * d2
+        C[2, 2] += d2 * d2
+    C[1, 0], C[2, 0], C[2, 1] = C[0, 1], C[0, 2], C[1, 2]
+    w = np.linalg.eigvalsh(C / n)
+    return math.degrees(math.asin(math.sqrt(min(max(w[1], 0.0), 1.0))))

@@ -26,7 +26,8 @@ from schemas import (
     SphereModel,
     SupportEdge,
 )
-from services.perception import relations
+from services.common.sat import pairs_overlap
+from services.perception import kernels, ransac, relations
 from services.perception.affordances import AffordanceOut, Hand, affordances
 from services.perception.cloud import organized_cloud
 from services.perception.obb import Box, intersect
@@ -40,6 +41,7 @@ from services.perception.primitives import (
 from services.perception.segmentation import segment
 
 MAX_INLIERS = 2000
+UP = np.array([0.0, 0.0, 1.0])
 
 
 @dataclass
@@ -117,7 +119,15 @@ class Perception:
         self.perceive(z, None, K, np.eye(4))
         self.perceive(z, rgb, K, np.eye(4))
         table = Box(np.zeros(3), np.eye(3), np.array([1.0, 1.0, 0.1]))  # two primitives' boxes:
-        intersect(table, Box(np.array([0, 0, 0.1]), np.eye(3), np.full(3, 0.1)), 0.01)
+        cup = Box(np.array([0, 0, 0.1]), np.eye(3), np.full(3, 0.1))
+        intersect(table, cup, 0.01)
+        both = [table, cup]
+        pairs_overlap(
+            *(np.stack([getattr(b, k) for b in both]) for k in ("rotation", "center", "extent"))
+        )
+        kernels.face_contact(cup.corners(), table.center, table.rotation, table.extent / 2, 0.02)
+        ransac.cylinder_arc(np.eye(3), UP)  # a curved fit's tests (the frame above may have none)
+        ransac.sphere_spread(np.eye(3))
 
     def perceive(
         self,

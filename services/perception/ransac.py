@@ -10,6 +10,7 @@ inliers, and the inliers are counted on the whole segment.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -184,7 +185,11 @@ def fit_cylinder(
         mask = kernels.cylinder_inliers(X, N, center, axis, radius, dist, cos_min)
         if mask.sum() < 10:
             return None
-        center, axis, radius = refine_cylinder(X[mask], N[mask], axis)
+        center, refined, radius, ok = kernels.cylinder_refine(X, N, mask, axis)
+        if ok:
+            axis = refined
+        else:  # a singular circle system: numpy's least squares
+            center, axis, radius = refine_cylinder(X[mask], N[mask], axis)
         if not r_min < radius < r_max:
             return None
     mask = kernels.cylinder_inliers(X, N, center, axis, radius, dist, cos_min)
@@ -206,7 +211,9 @@ def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32, subset=SUB
         mask = kernels.sphere_inliers(X, N, center, radius, dist, cos_min)
         if mask.sum() < 10:
             return None
-        center, radius = refine_sphere(X[mask])
+        center, radius, ok = kernels.sphere_refine(X, mask)
+        if not ok:
+            center, radius = refine_sphere(X[mask])
         if not r_min < radius < r_max:
             return None
     mask = kernels.sphere_inliers(X, N, center, radius, dist, cos_min)
@@ -217,7 +224,21 @@ def fit_sphere(X, N, rng, dist, cos_min, r_min, r_max, hypotheses=32, subset=SUB
 
 
 def cylinder_arc(N: np.ndarray, axis: np.ndarray) -> float:
-    """Angle (deg) the inlier normals sweep around the axis: small for a flat patch."""
+    """Angle (deg) the inlier normals sweep around the axis: small for a flat patch
+    (compiled, linear in the points: a sort of tens of thousands of angles was ms)."""
+    e1 = _unit(cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0]))
+    e2 = cross(axis, e1)
+    return math.degrees(kernels.normal_arc(np.ascontiguousarray(N, np.float64), e1, e2))
+
+
+def sphere_spread(N: np.ndarray) -> float:
+    """Smaller angular spread (deg) of the normals across their two main directions
+    (compiled: one pass)."""
+    return float(kernels.normal_spread(np.ascontiguousarray(N, np.float64)))
+
+
+def cylinder_arc_numpy(N: np.ndarray, axis: np.ndarray) -> float:
+    """``cylinder_arc`` in numpy (the reference the compiled one is tested against)."""
     e1 = _unit(cross(axis, [1.0, 0, 0] if abs(axis[0]) < 0.9 else [0, 1.0, 0]))
     e2 = cross(axis, e1)
     ang = np.arctan2(N @ e2, N @ e1)
@@ -228,8 +249,8 @@ def cylinder_arc(N: np.ndarray, axis: np.ndarray) -> float:
     return float(np.degrees(2 * np.pi - gaps.max()))
 
 
-def sphere_spread(N: np.ndarray) -> float:
-    """Smaller angular spread (deg) of the normals across their two main directions."""
+def sphere_spread_numpy(N: np.ndarray) -> float:
+    """``sphere_spread`` in numpy (the reference)."""
     if len(N) < 3:
         return 0.0
     m = _unit(N.mean(axis=0))

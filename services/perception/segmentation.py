@@ -106,6 +106,7 @@ def split_by_colour(
     # the object each pixel seeds (-1: none, it joins the nearest one of its region); each
     # region worked on in its bounding box
     boxes = ndimage.find_objects(labels + 1, n)
+    span = kernels.region_spans(cloud.points, labels, n)  # each region's largest side, m
     seeds = np.full(labels.shape, -1, np.int32)
     split = []
     next_object = 1
@@ -114,14 +115,18 @@ def split_by_colour(
         rest_floor = max(config.part_min, config.rest_share * region_size[r])
         if len(ids) == 1 and region_size[r] - size[ids[0]] < rest_floor:
             continue  # one large part and little else: one object
-        box = _grown(boxes[r], labels.shape, 3)
-        points = cloud.points[box][labels[box] == r]
-        if np.ptp(points, axis=0).max() > config.object_size:
+        if span[r] > config.object_size:
             continue  # furniture: a counter's top and front are one piece, whatever colour
+        box = _grown(boxes[r], labels.shape, 3)
         group = _colour_groups(mean[ids], config.distinct)
         plain = [g for g in range(group.max() + 1) if (group == g).sum() <= config.parts_per_colour]
         sub = parts[box]
-        plain_px = np.isin(sub, ids[np.isin(group, plain)])
+        # each part's object (0: none) looked up per pixel, not np.isin's sort per object
+        objects = np.zeros(m + 1, np.int32)
+        for k, g in enumerate(plain):
+            objects[ids[group == g]] = next_object + k
+        own = objects[sub]
+        plain_px = own > 0
         # the rest: the region away from the plain objects (not the edges between them)
         rest_px = (labels[box] == r) & ~ndimage.binary_dilation(plain_px, iterations=3)
         has_rest = rest_px.sum() >= rest_floor
@@ -129,9 +134,8 @@ def split_by_colour(
             continue  # one object
         split.append((r, box))
         sub_seeds = seeds[box]
-        for g in plain:
-            sub_seeds[np.isin(sub, ids[group == g])] = next_object
-            next_object += 1
+        sub_seeds[plain_px] = own[plain_px]
+        next_object += len(plain)
         if has_rest:
             sub_seeds[rest_px] = next_object
             next_object += 1

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.perception import kernels, obb, primitives, ransac
+from services.perception import kernels, obb, primitives, ransac, relations
 from services.perception.cloud import organized_cloud
 from services.perception.relations import fifth_percentile
 
@@ -240,3 +240,145 @@ def test_fill_counts_the_occupied_cells():
     ij = np.clip(((uv + p.box.extent[:2] / 2) / 0.02).astype(int), 0, shape - 1)
     want = len(np.unique(ij[:, 0] * shape[1] + ij[:, 1])) / float(np.prod(shape))
     assert primitives.fill(p) == want
+
+
+def _prim(points: np.ndarray, box: obb.Box) -> primitives.Extracted:
+    return primitives.Extracted("box", np.arange(len(points)), points, box, 0)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_face_contact_is_the_numpy_one(seed):
+    rng = np.random.default_rng(seed)
+    config = relations.RelationConfig()
+    R = np.linalg.qr(rng.normal(size=(3, 3)))[0] if seed % 2 else np.eye(3)
+    table = obb.Box(np.zeros(3), R, np.array([1.0, 0.8, 0.05]))
+    # an object's points on, beside or partly over the table's top face, within noise
+    n = int(rng.integers(50, 2000))
+    centre = np.array([rng.uniform(-0.6, 0.6), rng.uniform(-0.5, 0.5), 0.025])
+    local = centre + rng.uniform(-0.05, 0.05, (n, 3)) * np.array([1, 1, 0])
+    local[:, 2] += rng.uniform(0, 0.1, n) * (rng.random(n) < 0.7) + rng.normal(0, 0.004, n)
+    points = local @ R.T
+    s, o = _prim(np.zeros((1, 3)), table), _prim(points, obb.pca_box(points))
+    got = relations._face_contact(s, o, config)
+    want = relations._face_contact_numpy(s, o, config)
+    assert (got is None) == (want is None)
+    if want is not None:
+        for g, w in zip(got, want, strict=True):
+            assert np.allclose(g, w, atol=1e-9)
+
+
+def test_face_contact_finds_the_top_face_a_box_rests_on():
+    config = relations.RelationConfig()
+    table = obb.Box(np.zeros(3), np.eye(3), np.array([1.0, 0.8, 0.05]))
+    rng = np.random.default_rng(0)
+    cup = rng.uniform([-0.05, -0.05, 0.026], [0.05, 0.05, 0.15], (800, 3))
+    got = relations._face_contact(_prim(np.zeros((1, 3)), table), _prim(cup, table), config)
+    assert got is not None
+    normal, point, share = got
+    assert np.allclose(normal, [0, 0, 1]) and share == 1.0
+    assert 0.025 < point[2] < 0.045  # the cup's points within 2 cm of the top
+    beside = cup + np.array([0.55, 0, -0.1])  # next to the table, reaching below its top
+    got = relations._face_contact(_prim(np.zeros((1, 3)), table), _prim(beside, table), config)
+    assert got is not None and np.allclose(got[0], [1, 0, 0])  # its side face: no support
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_curved_refits_are_the_numpy_ones(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(20, 3000))
+    axis = ransac._unit(rng.normal(size=3))
+    e1 = ransac._unit(np.cross(axis, [1.0, 0, 0]))
+    e2 = np.cross(axis, e1)
+    phi = rng.uniform(0, rng.uniform(0.5, 6.0), n)  # an arc of the side, or nearly all of it
+    radial = np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), e2)
+    X = 0.05 * radial + np.outer(rng.uniform(0, 0.2, n), axis) + rng.normal(0, 0.002, (n, 3))
+    N = ransac._unit(radial + rng.normal(0, 0.05, (n, 3)))
+    mask = rng.random(n) < 0.8
+    centre, a, r, ok = kernels.cylinder_refine(X, N, mask, axis)
+    c_ref, a_ref, r_ref = ransac.refine_cylinder(X[mask], N[mask], axis)
+    assert ok and abs(r - r_ref) < 1e-9 and np.allclose(centre, c_ref, atol=1e-9)
+    assert np.allclose(a, a_ref, atol=1e-9) or np.allclose(a, -a_ref, atol=1e-9)
+    sphere = 0.07 * ransac._unit(rng.normal(size=(n, 3))) + rng.normal(0, 0.002, (n, 3))
+    centre, r, ok = kernels.sphere_refine(sphere, mask)
+    c_ref, r_ref = ransac.refine_sphere(sphere[mask])
+    assert ok and abs(r - r_ref) < 1e-9 and np.allclose(centre, c_ref, atol=1e-9)
+    assert abs(r - 0.07) < 0.01
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 11, 999])
+def test_plane_band_is_numpys_percentile(n):
+    rng = np.random.default_rng(n)
+    X, normal = rng.normal(size=(n, 3)), ransac._unit(rng.normal(size=3))
+    got = kernels.plane_band(X, normal, 0.3, 10.0, 90.0)
+    assert np.allclose(got, np.percentile(X @ normal + 0.3, (10, 90)), atol=1e-12)
+
+
+def test_plane_inliers_are_the_thresholded_residuals():
+    rng = np.random.default_rng(3)
+    X, N = rng.normal(0, 0.05, (5000, 3)), ransac._unit(rng.normal(size=(5000, 3)))
+    normal = ransac._unit(np.array([0.1, 0.2, 1.0]))
+    got = kernels.plane_inliers(X, N, normal, 0.01, 0.02, 0.5)
+    res = ransac.plane_residuals(X, N, normal, 0.01)
+    want = (res[0] < 0.02) & (res[1] > 0.5)
+    assert 100 < want.sum() < 4900 and (got == want).all()
+
+
+def test_region_spans_are_each_regions_largest_side():
+    rng = np.random.default_rng(4)
+    points = rng.normal(0, 1, (60, 80, 3)).astype(np.float32)
+    labels = rng.integers(-1, 5, (60, 80)).astype(np.int32)
+    got = kernels.region_spans(points, labels, 5)
+    want = [np.ptp(points[labels == r], axis=0).max() for r in range(5)]
+    assert np.allclose(got, want) and min(want) > 1.0
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_hypothesis_scores_are_the_thresholded_residuals(seed):
+    rng = np.random.default_rng(seed)
+    n = 3000
+    X = rng.normal(0, 0.1, (n, 3))
+    N = ransac._unit(X + rng.normal(0, 0.3, (n, 3)))  # about radial: a noisy ball
+    subset = rng.integers(0, n, 500)
+    centers, radii = rng.normal(0, 0.02, (8, 3)), rng.uniform(0.05, 0.2, 8)
+    axes = ransac._unit(rng.normal(size=(8, 3)))
+    dist, cos_min = 0.02, 0.8
+    Xs, Ns = X[subset], N[subset]
+    want_c = [
+        int(np.count_nonzero(np.logical_and(*_below(ransac.cylinder_residuals(Xs, Ns, c, a, r),
+                                                     dist, cos_min))))
+        for c, a, r in zip(centers, axes, radii, strict=True)
+    ]  # fmt: skip
+    want_s = [
+        int(np.count_nonzero(np.logical_and(*_below(ransac.sphere_residuals(Xs, Ns, c, r),
+                                                     dist, cos_min))))
+        for c, r in zip(centers, radii, strict=True)
+    ]  # fmt: skip
+    got_c = kernels.score_cylinders(X, N, subset, centers, axes, radii, dist, cos_min)
+    got_s = kernels.score_spheres(X, N, subset, centers, radii, dist, cos_min)
+    assert list(got_c) == want_c and list(got_s) == want_s and max(want_s) > 20
+    # one hypothesis (the plane through three points), no refinement: that plane
+    n0 = ransac._unit(np.cross(X[1] - X[0], X[2] - X[0]))
+    found_n, d, _, found = kernels.plane_ransac(X, N, np.array([[0, 1, 2]]), subset, dist, 0.0, 0)
+    assert found and abs(abs(found_n @ n0) - 1.0) < 1e-12 and abs(found_n @ X[2] + d) < 1e-12
+
+
+def _below(res, dist, cos_min):
+    return res[0] < dist, res[1] > cos_min
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_normal_arc_and_spread_are_the_numpy_ones(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(0, 5000)) if seed else 1
+    axis = ransac._unit(rng.normal(size=3)) if seed % 3 else np.array([1.0, 0, 0])
+    arc = rng.uniform(0.1, 2 * np.pi)  # normals over an arc of the axis, noisy
+    e1 = ransac._unit(np.cross(axis, rng.normal(size=3)))
+    phi = rng.uniform(0, arc, n)
+    N = np.outer(np.cos(phi), e1) + np.outer(np.sin(phi), np.cross(axis, e1))
+    N = ransac._unit(N + rng.normal(0, 0.02, (n, 3)))
+    got = ransac.cylinder_arc(N, axis)
+    assert got == pytest.approx(ransac.cylinder_arc_numpy(N, axis), abs=1e-9)
+    spread = ransac.sphere_spread(N)
+    assert spread == pytest.approx(ransac.sphere_spread_numpy(N), abs=1e-7)
+    if n > 1000:
+        assert abs(got - np.degrees(arc)) < 10
