@@ -69,8 +69,9 @@ converges to the same pose from either set's start, within ~1 mm) is from the se
 the ``reference`` poses, the poses the memory held with the drift (``registered``) and the
 drifted poses alone (``drift``). On redkitchen-a the reference scores ~14 mm (a Kinect v1's
 pairwise noise) and registration's poses ~50 mm: ``pose_error`` is the registration's walk
-(each registration a frame-to-map fit, ~1-2 cm off where the camera turns into new ground,
-the next frame fitted to it), not the reference's disagreement with the depth.
+(each registration a frame-to-map fit, off by up to ~5 cm where the camera turns fast,
+``reference_offset_mm_max``, and the next frame fitted to it), not the reference's
+disagreement with the depth.
 
 Target (issue 42): with the drift, pose_error_mm ≤ 10 on ``redkitchen-a``.
 """
@@ -333,9 +334,9 @@ def revisit_errors(
     reference poses, ``revisits``), the relative pose the two depth frames give by themselves
     (Open3D's point-to-plane ICP of the one on the other, Tukey's loss, coarse to fine from the
     set's relative pose: no code of the memory's registration) against the set's (mm, the
-    first camera's position; median over the pairs). Independent of any one reference: a set
-    whose frames are placed consistently scores the depth's own pairwise noise (~1 cm on a
-    Kinect v1), one that walked scores the walk between the two visits."""
+    first camera's position; median over the pairs). The reference only chooses the pairs:
+    a set whose frames are placed consistently scores the depth's own pairwise noise (~1 cm
+    on a Kinect v1), one that walked scores the walk between the two visits."""
     import open3d as o3d
 
     reg = o3d.pipelines.registration
