@@ -50,7 +50,8 @@ recording=<name> dof=<planar|full> pose_error_mm=<x> pose_error_deg=<x> drift_er
 drift_error_deg=<x> drift_residual_mm=<x> drift_residual_deg=<x> drift_residual_mm_max=<x>
 still_pose_error_mm=<x> mapped=<n> registered=<n> refused=<n> still_mapped=<n>
 still_registered=<n> same_frames=<yes|no> reference_offset_mm_median=<x>
-reference_offset_mm_max=<x>
+reference_offset_mm_max=<x> revisits=<n> revisit_mm_reference=<x> revisit_mm_registered=<x>
+revisit_mm_drift=<x>
 
 ``level_planes_m``: the level planes' heights in runs 3 cm wide, each as its median and how many
 fused planes it holds (a table top fused as one plane is ``0.72x1``). ``mapped``: the frames the
@@ -63,6 +64,16 @@ about 0 where depth and reference agree; the target needs it well under 10.
 over the frames); ``still_pose_error_mm``: the still run's at the last frame.
 ``same_frames``: the two runs integrated the same frames, tried registration on the same and
 accepted the same ones (``mapped`` = ``frames``: none dropped).
+``revisit_mm_*``: whether a set of poses agrees with the depth, judged by the depth alone
+(``revisit_errors``): for ``revisits`` pairs of frames at least 20 apart that see the same
+place, how far the relative pose the two depth frames give by themselves (Open3D's ICP, which
+converges to the same pose from either set's start, within ~1 mm) is from the set's, median:
+the ``reference`` poses, the poses the memory held with the drift (``registered``) and the
+drifted poses alone (``drift``). On redkitchen-a the reference scores ~14 mm (a Kinect v1's
+pairwise noise) and registration's poses ~50 mm: ``pose_error`` is the registration's walk
+(each registration a frame-to-map fit, off by up to ~5 cm where the camera turns fast,
+``reference_offset_mm_max``, and the next frame fitted to it), not the reference's
+disagreement with the depth.
 
 Target (issue 42): with the drift, pose_error_mm ≤ 10 on ``redkitchen-a``.
 """
@@ -296,6 +307,86 @@ def reference_offsets(frames: DatasetFrames, every: int = 3, dof: str = "planar"
     }
 
 
+def revisits(
+    clouds: list[np.ndarray], poses: list[np.ndarray], gap: int, overlap: float, at_most: int
+) -> list[tuple[int, int]]:
+    """Frame pairs at least ``gap`` apart whose views overlap at ``poses``: at least
+    ``overlap`` of the first's points within 2 cm of the second's; every 2nd frame, at most
+    ``at_most`` pairs spread evenly over them."""
+    from scipy.spatial import cKDTree
+
+    trees = [cKDTree(c) for c in clouds]
+    out = []
+    for i in range(0, len(clouds), 2):
+        for j in range(i + gap, len(clouds), 2):
+            rel = np.linalg.inv(poses[j]) @ poses[i]
+            d, _ = trees[j].query(clouds[i] @ rel[:3, :3].T + rel[:3, 3], distance_upper_bound=0.02)
+            if np.isfinite(d).mean() >= overlap:
+                out.append((i, j))
+    step = max(1, -(-len(out) // at_most))
+    return out[::step]
+
+
+def revisit_errors(
+    frames: DatasetFrames, sets: dict[str, list[np.ndarray]], gap: int = 20,
+    overlap: float = 0.6, at_most: int = 40,
+) -> dict:  # fmt: skip
+    """How well each set of camera poses (``sets``, the played frames' poses, by name; one
+    must be ``reference``) agrees with the depth where the camera came back to a place it saw
+    ``gap`` frames or more before: for such pairs of frames (their views overlapping at the
+    reference poses, ``revisits``), the relative pose the two depth frames give by themselves
+    (Open3D's point-to-plane ICP of the one on the other, Tukey's loss, coarse to fine from the
+    set's relative pose: no code of the memory's registration) against the set's (mm, the
+    first camera's position; median over the pairs). The reference only chooses the pairs:
+    a set whose frames are placed consistently scores the depth's own pairwise noise (~1 cm
+    on a Kinect v1), one that walked scores the walk between the two visits."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    m, depth_max = MemoryConfig(), SceneMemorySettings.model_fields["max_range"].default
+    clouds, sources, targets = [], [], []
+    for seq, i in enumerate(frames.indices()):
+        f = frames.frame(i, seq)
+        pts = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
+            camera_points(f.depth, f.intrinsics, m.depth_min, depth_max)))  # fmt: skip
+        sources.append(pts.voxel_down_sample(0.02))
+        target = pts.voxel_down_sample(0.015)
+        target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.04, max_nn=30))
+        targets.append(target)
+        clouds.append(np.asarray(sources[-1].points))
+    pairs = revisits(clouds, sets["reference"], gap, overlap, at_most)
+    out: dict = {"revisits": len(pairs)}
+    for name, poses in sets.items():
+        errors = []
+        for i, j in pairs:
+            rel = np.linalg.inv(poses[j]) @ poses[i]
+            T = rel
+            for reach, kernel in ((0.08, 0.04), (0.04, 0.02), (0.02, 0.01)):
+                T = reg.registration_icp(
+                    sources[i], targets[j], reach, T,
+                    reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=kernel)),
+                    reg.ICPConvergenceCriteria(max_iteration=50),
+                ).transformation  # fmt: skip
+            errors.append(float(np.linalg.norm(T[:3, 3] - rel[:3, 3])) * 1e3)
+        out[f"revisit_mm_{name}"] = round(float(np.median(errors)), 1) if errors else math.nan
+        out[f"revisit_mm_{name}_all"] = [round(e, 1) for e in errors]
+    out["revisit_pairs"] = pairs
+    return out
+
+
+def held_revisits(root: Path, drifted: dict, limit: int = 0) -> dict:
+    """``revisit_errors`` of the reference poses, the poses the memory held in the drift run
+    (``registered``) and the drifted poses alone (``drift``)."""
+    frames = DatasetFrames(read(root), limit=limit, drift=DRIFT, colour=False)
+    frames.T_up = np.array(drifted["T_up"])
+    chosen = frames.indices()
+    return revisit_errors(frames, {
+        "reference": [frames.pose(i) for i in chosen],
+        "registered": [np.array(T) for T in drifted["held"]],
+        "drift": [frames.published_pose(i, seq) for seq, i in enumerate(chosen)],
+    })  # fmt: skip
+
+
 def run_recording(
     root: Path,
     out: Path,
@@ -407,7 +498,8 @@ def drift_line(name: str, drift: dict) -> str:
             "drift_residual_mm", "drift_residual_deg", "drift_residual_mm_max",
             "still_pose_error_mm", "mapped", "registered", "refused", "still_mapped",
             "still_registered", "same_frames", "reference_offset_mm_median",
-            "reference_offset_mm_max")  # fmt: skip
+            "reference_offset_mm_max", "revisits", "revisit_mm_reference",
+            "revisit_mm_registered", "revisit_mm_drift")  # fmt: skip
     return " ".join([f"recording={name}", *(f"{k}={drift[k]}" for k in keys)])
 
 
@@ -474,6 +566,8 @@ def main() -> None:
                     print(f"real_data: {root.name}: the runs found different T_up",
                           file=sys.stderr)  # fmt: skip
                 drifts[dof] = runs["drift"] | drift_residual(runs["drift"], runs["still"])
+                print(f"real_data: {root.name}: revisits ({dof})", file=sys.stderr, flush=True)
+                drifts[dof] |= held_revisits(root, runs["drift"], args.limit)
                 lines.append(drift_line(root.name, drifts[dof]))
                 print(lines[-1], flush=True)
             plot(root.name, drifts, args.out / f"real_data_{root.name}.png")
