@@ -849,13 +849,18 @@ class Fusion:
         return gone
 
     def _same_round(self, a: MemoryPrimitive, b: MemoryPrimitive, share: float) -> bool:
-        """Two memory cylinders or spheres of one round object (the same parameters, or a
-        ``round_pair``) overlapping by more than λ_p: views that each matched one of them,
-        never the memory with itself (a mug held as three cylinders)."""
+        """Two memory cylinders or spheres of one round object overlapping by more than λ_p:
+        views that each matched one of them, never the memory with itself (a mug held as
+        three cylinders). Radii within ``radius``, each centre inside the other's body; not
+        the axes: a cup's few cm of arc leave a cylinder's axis 20° off in one view."""
         pa, pb = a.primitive, b.primitive
         if {pa.model.kind, pb.model.kind} - {"sphere", "cylinder"}:
             return False
-        if not (compare_models(pa, pb, self.config) or round_pair(pa, pb, self.config)):
+        ra, rb = pa.model.radius, pb.model.radius
+        if abs(ra - rb) > self.config.radius:
+            return False
+        apart = float(np.linalg.norm(np.asarray(pa.model.center) - pb.model.center))
+        if apart > max(self.config.center, ra, rb):
             return False
         back = inlier(a.points, pb.obb, self.config.obb_margin, self._boxes)
         return max(share, back) > self.config.lambda_p

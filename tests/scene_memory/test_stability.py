@@ -73,9 +73,10 @@ def test_a_book_at_the_back_of_a_counter_seen_only_at_its_front_rests_on_it():
 
 def test_contact_from_below_supports_and_contact_at_the_side_does_not():
     floor = plane(0, (-1.0, 3.0), (-1.0, 1.0), 0.0)
-    ramp = tilted(1, (0.5, 1.5), (-0.5, 0.5), 0.3, 30.0)  # no level top to lie on
-    foot = 0.3 - np.tan(np.radians(30.0)) * 0.05  # the ramp's height under the box's low edge
-    resting = box(2, (1.0, 0.0, foot + 0.055), (0.1, 0.1, 0.1))  # its low edge on the ramp
+    ramp = tilted(1, (0.8, 1.2), (-0.2, 0.2), 0.3, 30.0)  # no level top to lie on
+    # the box's edge at x = 0.95 on the ramp, where the ramp is highest under it
+    foot = 0.3 - np.tan(np.radians(30.0)) * 0.05
+    resting = box(2, (0.9, 0.0, foot + 0.05), (0.1, 0.1, 0.1))
     beside = box(3, (0.7, 0.6, 0.5), (0.1, 0.1, 0.2))  # nothing below it
     the_wall = wall(4, (-1.0, 1.0), 0.8, (0.0, 1.6))  # touches 3 at its side
     bodies = _bodies(floor, ramp, resting, beside, the_wall)
