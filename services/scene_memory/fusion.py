@@ -29,7 +29,6 @@ roi) and counts its edges into occ(e).
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -625,12 +624,14 @@ class Fusion:
         self._edge_messages: dict[tuple[int, int], SpatialEdge] = {}  # … and its spatial edges
         self._bodies: dict[int, Body] = {}  # … and as stability sees it
         self._touches: Touches = {}  # … and which touch which from below
+        #: (plane, structure) → (their primitives then, whether the plane is against it)
+        self._against: dict[tuple[int, int], tuple[Primitive, Primitive, bool]] = {}
         #: of the last model's stable primitives, those stability found resting (rule, on)
         self.settled: dict[int, tuple[str, int | None]] = {}
         self.unresolved: list[int] = []  # … and of its unsupported ones, those not seen under
 
     #: caches, rebuilt as needed: never in a snapshot
-    TRANSIENT = ("_boxes", "_messages", "_edge_messages", "_bodies", "_touches")
+    TRANSIENT = ("_boxes", "_messages", "_edge_messages", "_bodies", "_touches", "_against")
 
     def __getstate__(self) -> dict:
         return {k: v for k, v in self.__dict__.items() if k not in self.TRANSIENT}
@@ -638,7 +639,7 @@ class Fusion:
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self._boxes, self._messages, self._edge_messages = _Boxes(), {}, {}
-        self._bodies, self._touches = {}, {}
+        self._bodies, self._touches, self._against = {}, {}, {}
 
     def _new_id(self) -> int:
         self.next_id += 1
@@ -1110,20 +1111,9 @@ class Fusion:
         supports: dict[int, list[int]] = {}
         for a, b in support if support is not None else self.support(shapes):
             supports.setdefault(a, []).append(b)
-        stable: set[int] = set()
-        bodies, settled = self._stability_bodies(), {}
-        queue = deque(ground)
-        stable |= ground
-        while queue:
-            while queue:
-                for t in supports.get(queue.popleft(), []):
-                    if t not in stable:
-                        stable.add(t)
-                        queue.append(t)
-            new = settle(bodies, stable, self._stability, self._touches)
-            settled.update(new)
-            queue.extend(new)
-            stable |= set(new)
+        stable, settled = settle(
+            self._stability_bodies(), ground, supports, self._stability, self._touches
+        )
         self.settled = settled
         unsupported = set(self.prims) - stable
         views = self.config.below_views
@@ -1169,20 +1159,27 @@ class Fusion:
     def _attached(self, structure: set[int]) -> set[int]:
         """The planes against a structure: ten of their points or more within ``attached`` of
         its box (a board's edge along the wall; not a solid beside it: an object stands on
-        something)."""
+        something). Each pair's answer is kept while both are unchanged."""
         c, out = self.config, set()
-        walls = [self.prims[i].primitive.obb for i in structure]
+        walls = [(i, self.prims[i].primitive) for i in structure]
         if not walls:
             return out
+        kept = self._against
         for i, m in self.prims.items():
             if i in structure or m.primitive.model.kind != "plane":
                 continue
-            for o in walls:
-                if not self._boxes.intersect(m.primitive.obb, o, c.attached):
-                    continue
-                if inlier(m.points, o, c.attached, self._boxes) * len(m.points) >= 10:
+            for w, o in walls:
+                hit = kept.get((i, w))
+                if hit is None or hit[0] is not m.primitive or hit[1] is not o:
+                    against = self._boxes.intersect(m.primitive.obb, o.obb, c.attached) and (
+                        inlier(m.points, o.obb, c.attached, self._boxes) * len(m.points) >= 10
+                    )
+                    hit = kept[i, w] = (m.primitive, o, bool(against))
+                if hit[2]:
                     out.add(i)
                     break
+        if len(kept) > 20 * len(self.prims) + 1000:  # pairs of primitives since gone
+            self._against = {k: v for k, v in kept.items() if k[0] in self.prims}
         return out
 
     @staticmethod

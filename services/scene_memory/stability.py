@@ -23,6 +23,7 @@ already stable:
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -171,6 +172,8 @@ def _level_top(s: Primitive, c: StabilityConfig) -> bool:
 def _touches_below(b: Body, s: Body, c: StabilityConfig) -> bool:
     """The contact rule: enough of ``b``'s points within ``contact`` of ``s``'s, in ``b``'s
     lower part, with ``s``'s points there not above them."""
+    if s.lo[2] > b.median_z - c.contact_below + c.contact or s.hi[2] < b.bottom - c.contact:
+        return False  # s lies wholly above b's lower part, or below its bottom
     q = b.points[
         np.all(b.points >= s.lo - c.contact, axis=1) & np.all(b.points <= s.hi + c.contact, axis=1)
     ]
@@ -191,74 +194,67 @@ Touches = dict[tuple[int, int], tuple[Body, Body, bool]]
 
 
 def settle(
-    bodies: dict[int, Body], stable: set[int], c: StabilityConfig, touches: Touches | None = None
-) -> dict[int, tuple[str, int | None]]:
-    """Of the bodies not in ``stable``, those the rules above find resting on something
-    stable (iterated: what rests on them next), each with its rule and supporter (None: the
-    floor). ``stable`` is not changed; ``touches``: the contact rule's answers kept between
-    calls (a model is rebuilt after every view, and most primitives did not change)."""
+    bodies: dict[int, Body],
+    ground: set[int],
+    supports: dict[int, list[int]],
+    c: StabilityConfig,
+    touches: Touches | None = None,
+) -> tuple[set[int], dict[int, tuple[str, int | None]]]:
+    """The stable bodies: ``ground``, what a chain of ``supports`` edges (supporter →
+    supported) leads to from it, and what the rules above find resting on something stable,
+    to a fixpoint; and of them, those a rule held (rule, supporter; None: the floor). One
+    worklist: each body that becomes stable is asked once, for its edges and for the
+    bodies near it that might rest on it. ``touches``: the contact rule's answers kept
+    between calls (a model is rebuilt after every view, most primitives unchanged)."""
     touches = {} if touches is None else touches
-    held = set(stable)
-    out: dict[int, tuple[str, int | None]] = {}
-    floor = floor_height(bodies, c)
     ids = list(bodies)
+    row = {i: j for j, i in enumerate(ids)}
     lo = np.array([bodies[i].lo for i in ids]).reshape(-1, 3)
     hi = np.array([bodies[i].hi for i in ids]).reshape(-1, 3)
-    row = {i: j for j, i in enumerate(ids)}
-    changed = True
-    while changed:
-        changed = False
-        held_rows = np.array([row[i] for i in held], dtype=int)
-        for i in ids:
-            if i in held:
-                continue
-            b = bodies[i]
-            how = _rests(b, i, floor, bodies, ids, lo, hi, held_rows, row, c, touches)
-            if how is not None:
-                out[i] = how
-                held.add(i)
-                held_rows = np.append(held_rows, row[i])
-                changed = True
-    return out
-
-
-def _rests(
-    b: Body,
-    i: int,
-    floor: float | None,
-    bodies: dict[int, Body],
-    ids: list[int],
-    lo: np.ndarray,
-    hi: np.ndarray,
-    held_rows: np.ndarray,
-    row: dict[int, int],
-    c: StabilityConfig,
-    touches: Touches,
-) -> tuple[str, int | None] | None:
-    if floor is not None and b.bottom <= floor + c.rest_tolerance:
-        return "floor", None
-    if not len(held_rows):
-        return None
-    # stable bodies whose boxes reach b's (grown by the contact distance), below its top
-    r = row[i]
     grow = max(c.contact, c.rest_tolerance)
-    near = held_rows[
-        np.all(lo[held_rows] <= hi[r] + grow, axis=1)
-        & np.all(hi[held_rows] >= lo[r] - grow, axis=1)
-    ]
+    stable = np.zeros(len(ids), bool)
+    held: dict[int, tuple[str, int | None]] = {}
+    queue = deque(i for i in ground if i in row)
+    stable[[row[i] for i in queue]] = True
+    floor = floor_height(bodies, c)
+    if floor is not None:
+        for i in ids:
+            if not stable[row[i]] and bodies[i].bottom <= floor + c.rest_tolerance:
+                held[i] = ("floor", None)
+                stable[row[i]] = True
+                queue.append(i)
+    while queue:
+        j = queue.popleft()
+        for t in supports.get(j, []):
+            if t in row and not stable[row[t]]:
+                stable[row[t]] = True
+                queue.append(t)
+        r = row[j]
+        near = np.flatnonzero(
+            ~stable & np.all(lo <= hi[r] + grow, axis=1) & np.all(hi >= lo[r] - grow, axis=1)
+        )
+        for k in near.tolist():
+            how = _rests_on(bodies[ids[k]], ids[k], bodies[j], j, c, touches)
+            if how is not None:
+                held[ids[k]] = how
+                stable[k] = True
+                queue.append(ids[k])
+    return {i for i, on in zip(ids, stable.tolist(), strict=True) if on}, held
+
+
+def _rests_on(
+    b: Body, i: int, s: Body, j: int, c: StabilityConfig, touches: Touches
+) -> tuple[str, int] | None:
+    """Does ``b`` lie on ``s``'s level top, or touch it from above?"""
     centre = np.asarray(b.primitive.obb.center)
-    for j in near.tolist():
-        s = bodies[ids[j]]
-        if not _level_top(s.primitive, c) or not _over(b, s.primitive, c):
-            continue
-        if abs(b.bottom - _top_at(s.primitive, centre[:2])) <= c.rest_tolerance:
-            return "level", ids[j]
-    for j in near.tolist():
-        s = bodies[ids[j]]
-        hit = touches.get((i, ids[j]))
-        if hit is None or hit[0] is not b or hit[1] is not s:
-            ok = bool(len(s.points) and len(b.points) and _touches_below(b, s, c))
-            hit = touches[i, ids[j]] = (b, s, ok)
-        if hit[2]:
-            return "contact", ids[j]
-    return None
+    if (
+        _level_top(s.primitive, c)
+        and abs(b.bottom - _top_at(s.primitive, centre[:2])) <= c.rest_tolerance
+        and _over(b, s.primitive, c)
+    ):
+        return "level", j
+    hit = touches.get((i, j))
+    if hit is None or hit[0] is not b or hit[1] is not s:
+        ok = bool(len(s.points) and len(b.points) and _touches_below(b, s, c))
+        hit = touches[i, j] = (b, s, ok)
+    return ("contact", j) if hit[2] else None
