@@ -189,8 +189,9 @@ def _touches_below(b: Body, s: Body, c: StabilityConfig) -> bool:
     return float(np.median(s.points[k[near], 2])) <= contact_z + c.contact / 2
 
 
-#: (resting body, supporter) → the contact rule's answer, for as long as both are unchanged
-Touches = dict[tuple[int, int], tuple[Body, Body, bool]]
+#: (resting body, supporter) → the rules' answer (rule, supporter; None), for as long as
+#: both are unchanged
+Touches = dict[tuple[int, int], tuple[Body, Body, tuple[str, int] | None]]
 
 
 def settle(
@@ -245,16 +246,20 @@ def settle(
 def _rests_on(
     b: Body, i: int, s: Body, j: int, c: StabilityConfig, touches: Touches
 ) -> tuple[str, int] | None:
-    """Does ``b`` lie on ``s``'s level top, or touch it from above?"""
+    """Does ``b`` lie on ``s``'s level top, or touch it from above? (kept in ``touches``
+    while both are unchanged)"""
+    hit = touches.get((i, j))
+    if hit is not None and hit[0] is b and hit[1] is s:
+        return hit[2]
+    how: tuple[str, int] | None = None
     centre = np.asarray(b.primitive.obb.center)
     if (
         _level_top(s.primitive, c)
         and abs(b.bottom - _top_at(s.primitive, centre[:2])) <= c.rest_tolerance
         and _over(b, s.primitive, c)
     ):
-        return "level", j
-    hit = touches.get((i, j))
-    if hit is None or hit[0] is not b or hit[1] is not s:
-        ok = bool(len(s.points) and len(b.points) and _touches_below(b, s, c))
-        hit = touches[i, j] = (b, s, ok)
-    return ("contact", j) if hit[2] else None
+        how = ("level", j)
+    elif len(s.points) and len(b.points) and _touches_below(b, s, c):
+        how = ("contact", j)
+    touches[i, j] = (b, s, how)
+    return how
