@@ -51,9 +51,11 @@ from services.common.sat import boxes_overlap, overlap, pairs_overlap
 from services.scene_memory.evidence import ViewDepth, depth_sigma
 from services.scene_memory.stability import (
     BELOW_EVIDENCE,
+    ROUND,
     Body,
     StabilityConfig,
     Touches,
+    level_area,
     settle,
 )
 
@@ -327,7 +329,7 @@ def round_pair(a: Primitive, b: Primitive, c: FusionConfig) -> bool:
     """A sphere and a cylinder of about one radius, the sphere's centre on the cylinder's
     axis within its length: one round object that one view fitted as a ball and another as a
     can (a bellied cup seen from the side, then from above)."""
-    if {a.model.kind, b.model.kind} != {"sphere", "cylinder"}:
+    if {a.model.kind, b.model.kind} != ROUND:
         return False
     ball, can = (a.model, b.model) if a.model.kind == "sphere" else (b.model, a.model)
     if abs(ball.radius - can.radius) > c.radius:
@@ -799,7 +801,7 @@ class Fusion:
             result.removed += self._join_pieces(mem, pieces, distance, result)
         if not whole:
             depth = ViewDepth(obs, c.through_cell)
-            result.decayed = self._decay(obs, visible, set(result.mapping.values()), depth)
+            result.decayed = self._decay(visible, set(result.mapping.values()), depth)
             result.removed += result.decayed
             in_view = {m.id for m in visible} | set(result.mapping.values())
             self._look_below([self.prims[i] for i in in_view if i in self.prims], depth)
@@ -812,10 +814,9 @@ class Fusion:
 
     def _decay(
         self,
-        obs: SceneObservation,
         visible: list[MemoryPrimitive],
         matched: set[int],
-        depth: ViewDepth | None = None,
+        depth: ViewDepth,
     ) -> int:
         """Negative evidence (``evidence.py``): the memory primitives in view that this view
         did not match and saw through count it; ``decay_views`` in a row remove them (a
@@ -834,7 +835,6 @@ class Fusion:
             if m.id in matched:
                 m.seen_through = 0
                 continue
-            depth = depth or ViewDepth(obs, c.through_cell)
             through, evidence = depth.seen_through(m.points, c.through_margin)
             if evidence < c.through_points:
                 continue
@@ -855,7 +855,7 @@ class Fusion:
         three cylinders). Radii within ``radius``, each centre inside the other's body; not
         the axes: a cup's few cm of arc leave a cylinder's axis 20° off in one view."""
         pa, pb = a.primitive, b.primitive
-        if {pa.model.kind, pb.model.kind} - {"sphere", "cylinder"}:
+        if {pa.model.kind, pb.model.kind} - ROUND:
             return False
         ra, rb = pa.model.radius, pb.model.radius
         if abs(ra - rb) > self.config.radius:
@@ -871,7 +871,7 @@ class Fusion:
         tips the vote, it is refitted as this view's kind on all its points. ``votes``: the
         merged one's own (a memory primitive joining), else this view's one."""
         kind = mem.primitive.model.kind
-        if kind not in ("sphere", "cylinder") or phi.model.kind not in ("sphere", "cylinder"):
+        if kind not in ROUND or phi.model.kind not in ROUND:
             return
         mem.round_votes += _round_vote(phi.model.kind) if votes is None else votes
         if phi.model.kind != kind and _round_vote(phi.model.kind) * mem.round_votes > 0:
@@ -1012,7 +1012,7 @@ class Fusion:
                 ) or self._same_round(solid, m, share):
                     self.prims.pop(m.id)
                     self._merge_into(solid, m.points.astype(np.float64))
-                    if kind in ("sphere", "cylinder"):
+                    if kind in ROUND:
                         self._vote_round(solid, m.primitive, m.round_votes)
                     self._rename_edges(m.id, t)
                     for k, v in result.mapping.items():
@@ -1182,13 +1182,7 @@ class Fusion:
             self._against = {k: v for k, v in kept.items() if k[0] in self.prims}
         return out
 
-    @staticmethod
-    def _level_area(p: Primitive) -> float:
-        R, e = p.obb.rotation, p.obb.extent
-        k = int(np.argmax(np.abs(R[2])))
-        if abs(R[2, k]) < np.cos(np.radians(15)):
-            return 0.0
-        return float(np.prod(np.delete(e, k)))
+    _level_area = staticmethod(level_area)
 
     def spatial_edges(self) -> list[tuple[int, int]]:
         """Pairs of primitives whose OBBs, grown by ε, overlap (every pair in one kernel)."""

@@ -31,6 +31,8 @@ from scipy.spatial import cKDTree
 
 from schemas import Primitive
 
+#: the curved kinds one round object may be fitted as, view by view
+ROUND = frozenset({"sphere", "cylinder"})
 #: points kept per primitive for the contact test (every k-th)
 SAMPLE = 1500
 #: how far under a body's base the space is probed for a support (m), and from how many of
@@ -124,15 +126,19 @@ def floor_height(bodies: dict[int, Body], c: StabilityConfig) -> float | None:
     heights = [
         plane_height(b.primitive)
         for b in bodies.values()
-        if is_level(b.primitive, c) and _footprint_area(b.primitive) >= c.ground_area
+        if is_level(b.primitive, c) and level_area(b.primitive, c.level_deg) >= c.ground_area
     ]
     lowest = min(heights, default=None)
     return lowest if lowest is not None and lowest < c.floor_max else None
 
 
-def _footprint_area(p: Primitive) -> float:
+def level_area(p: Primitive, level_deg: float = 15.0) -> float:
+    """The area of a box's level face (the axes other than the one nearest vertical), 0
+    when no axis lies within ``level_deg`` of vertical."""
     R, e = p.obb.rotation, p.obb.extent
     k = int(np.argmax(np.abs(R[2])))
+    if abs(R[2, k]) < np.cos(np.radians(level_deg)):
+        return 0.0
     return float(np.prod(np.delete(e, k)))
 
 
