@@ -101,6 +101,8 @@ def test_a_raising_handler_is_counted_and_the_node_goes_on(node, client):
 
 def test_metrics_queryable_and_liveliness(node, client):
     keys = Keys()
+    # the token travels node -> router -> client like any declaration: wait for it, then the set
+    wait_for(lambda: liveliness_tokens(client, keys.alive()), 10, "the node's token")
     assert liveliness_tokens(client, keys.alive()) == {keys.alive("tester", "t0")}
     node.subscribe(keys.imu(), ImuSample, lambda m: None)
     matched_publisher(client, keys.imu()).put(b"junk")
