@@ -819,8 +819,9 @@ class Fusion:
         depth: ViewDepth,
     ) -> int:
         """Negative evidence (``evidence.py``): the memory primitives in view that this view
-        did not match and saw through count it; ``decay_views`` in a row remove them (a
-        moved or gone object, a veil of flying pixels). A match resets the count. And a
+        did not match and saw through count it; ``decay_views`` in a row (fewer for one
+        seen in fewer views: as many as saw it) remove them (a moved or gone object, a veil
+        of flying pixels). A match resets the count. And a
         primitive seen in one view only, whose surface ``unconfirmed_views`` later views
         saw where it lies (not hidden, not through) without any of their primitives
         matching it, was a segmentation of that view alone (noise, a sliver between two
@@ -842,7 +843,10 @@ class Fusion:
                 m.seen_through += 1
             elif m.views == 1 and c.unconfirmed_views > 0:
                 m.unconfirmed += 1
-            if m.seen_through >= c.decay_views or (
+            # as much evidence against as there was for: a primitive one view saw goes once
+            # one view saw through it (the fetch-table arm's slivers), a table only after
+            # ``decay_views`` in a row
+            if m.seen_through >= min(c.decay_views, m.views) or (
                 c.unconfirmed_views > 0 and m.unconfirmed >= c.unconfirmed_views
             ):
                 self.prims.pop(m.id)
