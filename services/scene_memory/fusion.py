@@ -98,6 +98,10 @@ class FusionConfig:
     structure_width: float = 0.3
     attached: float = 0.02  # m: a plane this close to a structure is against it
     rest_tolerance: float = 0.03  # a supported primitive reaches this far below its supporter
+    #: m: of two supporters of one primitive where the lower supports the upper (a table, a
+    #: tray on it), the lower is dropped when the primitive's bottom is this much nearer the
+    #: upper's top: a cup on a tray rests on the tray (the table holds it through the tray)
+    nearer_top: float = 0.01
     #: negative evidence (``evidence.py``): a primitive that this many views in a row saw
     #: through (more than ``through_share`` of its points with evidence, at least
     #: ``through_points`` of them) is gone from the scene; 0: never
@@ -140,6 +144,27 @@ class Update:
 
 
 # -- geometry helpers --------------------------------------------------------------------------
+
+
+def _direct(
+    edges: dict[tuple[int, int], int], bodies: dict[int, Body], nearer: float
+) -> dict[tuple[int, int], int]:
+    """``edges`` without a → b where b also rests on an m that a holds and b's bottom lies
+    ``nearer`` closer to m's top than to a's (the tray between the table and the cup)."""
+    held: dict[int, list[int]] = {}
+    for a, b in edges:
+        held.setdefault(b, []).append(a)
+    out = {}
+    for (a, b), n in edges.items():
+        bottom = bodies[b].bottom
+        through = any(
+            (a, m) in edges and abs(bottom - bodies[a].top) - abs(bottom - bodies[m].top) > nearer
+            for m in held[b]
+            if m != a
+        )
+        if not through:
+            out[a, b] = n
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -1070,7 +1095,10 @@ class Fusion:
         model cannot tell apart. And the supported one's bottom is not below the
         supporter's top (a box seen beside a shorter one, its lower part hidden by it,
         seemed to rest on it in that view): bottoms and tops of their points (``Body``: a
-        box fitted to 2 m away Kinect points reaches centimetres past them)."""
+        box fitted to 2 m away Kinect points reaches centimetres past them). A primitive
+        held by a and by m that a holds rests on m alone when its bottom is ``nearer_top``
+        nearer m's top (support is direct: the thesis's graph has no edge that a chain of
+        two gives)."""
         c = self.config
         shapes = shapes or _Shapes()
         level, z_range = shapes.level_area, shapes.z_range
@@ -1086,7 +1114,7 @@ class Fusion:
             if bodies[b].bottom < bodies[a].top - c.rest_tolerance:
                 continue
             out[a, b] = n
-        return out
+        return _direct(out, bodies, c.nearer_top)
 
     def unstable(
         self, support: dict[tuple[int, int], int] | None = None, shapes: _Shapes | None = None

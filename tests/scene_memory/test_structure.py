@@ -62,3 +62,25 @@ def test_an_object_whose_bottom_lies_on_a_stable_top_rests_without_a_seen_edge()
     assert sorted(z[i] for i in model.unstable_ids + model.unresolved_ids) == ["0.77", "0.87"]
     on_it = [m for m in fusion.prims.values() if abs(m.primitive.obb.center[0] - 0.9) < 0.01]
     assert on_it[0].id not in fusion.scene_model().unstable_ids
+
+
+def test_what_lies_on_a_tray_on_a_table_rests_on_the_tray_alone():
+    """Support is direct (thesis 3.2.2's graph): a cup on a tray on a table is held by the
+    tray, not by the table as well, though its bottom is within ``rest_tolerance`` of both
+    tops and a view reported both; a cup on the table beside the tray keeps the table."""
+    table = plane(0, (0.2, 1.6), (-0.6, 0.6), 0.72)
+    tray = box(1, (0.9, 0.0, 0.74), (0.4, 0.3, 0.04))  # top at 0.76
+    on_tray = box(2, (0.9, 0.0, 0.81), (0.08, 0.08, 0.1))  # bottom at 0.76
+    beside = box(3, (1.3, 0.0, 0.77), (0.08, 0.08, 0.1))  # bottom at 0.72, by the tray
+    edges = [(0, 1), (1, 2), (0, 2), (0, 3), (1, 3)]
+    names = {0: "table", 1: "tray", 2: "cup on tray", 3: "cup on table"}
+    direct = {("table", "tray"), ("tray", "cup on tray"), ("table", "cup on table")}
+    for nearer, expected in ((FusionConfig.nearer_top, direct),
+                             (np.inf, direct | {("table", "cup on tray")})):  # fmt: skip
+        fusion = Fusion(FusionConfig(nearer_top=nearer))
+        update = fusion.update(observation(0, [table, tray, on_tray, beside], edges))
+        name = {update.mapping[i]: n for i, n in names.items()}
+        assert {(name[a], name[b]) for a, b in fusion.support()} == expected
+        # the model's edges are these, and all four rest
+        model = fusion.scene_model()
+        assert len(model.support_edges) == len(expected) and not model.unstable_ids
