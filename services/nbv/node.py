@@ -285,6 +285,11 @@ class NbvNode:
                 step, np.eye(4), current, {}, centres[0], information_gain=0.0, cost=0.0,
                 utility=0.0, terminate=True, reason="no_candidates", detail=result.detail,
             )  # fmt: skip
+        if result.looked_around:
+            log.info(
+                "no view sphere's view has a path from (%.2f, %.2f): looking around from here",
+                *current[:2],
+            )
         joints = c.joints[b]
         reply = self._reply(
             step, c.poses[b], c.base[b], joints, c.targets[b],

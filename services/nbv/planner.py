@@ -20,8 +20,13 @@ from schemas.planning import BLOCKED_RADIUS, EXCLUDED_RADIUS
 from services.nbv import information_gain as ig
 from services.nbv import topdown, view_sphere
 from services.nbv.kinematics import HeadIK, HeadSolution
-from services.nbv.path_cost import MARGIN, FloorMap, PathPlanner
+from services.nbv.path_cost import MARGIN, FloorMap, PathPlanner, path_cost
 from services.nbv.utility import utility
+
+#: where views exist but no path reaches any (the platform boxed in by floor it has not
+#: seen), the robot looks around from where it stands: turned in place toward this many
+#: directions, at a point this far away and this high (the floor around it, low furniture)
+LOOK_DIRECTIONS, LOOK_DISTANCE, LOOK_HEIGHT = 12, 1.5, 0.4
 
 
 def _timed(fn: Callable[..., Any], *args: Any) -> tuple[Any, float]:
@@ -88,6 +93,19 @@ class PlanResult:
     reason: str
     timings_ms: dict[str, float] = field(default_factory=dict)
     detail: str = ""  # why, in words (no_candidates)
+    looked_around: bool = False  # no view had a path: views turned in place were added
+
+
+def _concat(*parts: Candidates) -> Candidates:
+    """The candidates of ``parts`` in order, as one."""
+    return Candidates(
+        np.concatenate([p.t for p in parts]),
+        np.concatenate([p.targets for p in parts]),
+        np.concatenate([p.poses for p in parts]),
+        np.concatenate([p.base for p in parts]),
+        [j for p in parts for j in p.joints],
+        np.concatenate([p.saliency for p in parts]),
+    )
 
 
 class Planner:
@@ -175,18 +193,37 @@ class Planner:
     def candidates(self, centres, scene, visited, occupancy) -> Candidates:
         """The reachable views of every view sphere (one per centre: the scene's centre or
         its points of interest, 4.1)."""
-        parts = [
-            self.reachable_views(c, *self.sample(c, scene, visited, occupancy))
-            for c in np.asarray(centres, float).reshape(-1, 3)
-        ]
-        return Candidates(
-            np.concatenate([p.t for p in parts]),
-            np.concatenate([p.targets for p in parts]),
-            np.concatenate([p.poses for p in parts]),
-            np.concatenate([p.base for p in parts]),
-            [j for p in parts for j in p.joints],
-            np.concatenate([p.saliency for p in parts]),
+        return _concat(
+            *(
+                self.reachable_views(c, *self.sample(c, scene, visited, occupancy))
+                for c in np.asarray(centres, float).reshape(-1, 3)
+            )
         )
+
+    def look_around(self, current: tuple[float, float, float]) -> Candidates:
+        """Views from where the platform stands, turned in place toward ``LOOK_DIRECTIONS``
+        points ``LOOK_DISTANCE`` around it, ``LOOK_HEIGHT`` up (the head as ``look`` aims
+        it): what a robot does whose every view sphere lies beyond floor it has not seen
+        (in the thesis's kitchen the table's view sphere is behind the robot's back)."""
+        x, y, _ = current
+        t, targets, poses, bases, joints = [], [], [], [], []
+        for a in np.linspace(-math.pi, math.pi, LOOK_DIRECTIONS, endpoint=False):
+            target = np.array([x + LOOK_DISTANCE * math.cos(a),
+                               y + LOOK_DISTANCE * math.sin(a), LOOK_HEIGHT])  # fmt: skip
+            base = (x, y, float(a))
+            sol = self.look(base, target)
+            if sol is None:
+                continue
+            t.append(sol.T_world_camera[:3, 3] - target)
+            targets.append(target)
+            poses.append(sol.T_world_camera)
+            bases.append(base)
+            joints.append(sol.joints)
+        return Candidates(
+            np.array(t).reshape(-1, 3), np.array(targets).reshape(-1, 3),
+            np.array(poses).reshape(-1, 4, 4), np.array(bases).reshape(-1, 3), joints,
+            np.zeros(len(t)),
+        )  # fmt: skip
 
     @staticmethod
     def visible(cands: Candidates, occupancy) -> Candidates:
@@ -366,6 +403,23 @@ class Planner:
         if excluded is not None and len(excluded) and len(cost):
             gap = np.linalg.norm(cands.base[:, None, :2] - excluded[None, :, :2], axis=2)
             cost[gap.min(axis=1) < EXCLUDED_RADIUS] = math.inf
+        looked_around = False
+        if sampled[1] and not np.isfinite(cost).any():
+            # views, but no path to any: turn in place and look (the path a turn; Eq. 4.9)
+            t2 = time.perf_counter()
+            around = self.look_around(current)
+            if len(around.t):
+                looked_around = True
+                g, _ = ig.hierarchical(
+                    states, origin, voxel, around.poses, c.intrinsics, c.max_range, c.every,
+                    c.best_k, c.roi, c.ig_measure,
+                )  # fmt: skip
+                turns = [np.array([current, b], float) for b in around.base]
+                cands = _concat(cands, around)
+                gain = np.concatenate([gain, g])
+                cost = np.concatenate([cost, [path_cost(p, c.vel_lin, c.vel_rot) for p in turns]])
+                paths = paths + turns
+            times["look_around_ms"] = (time.perf_counter() - t2) * 1e3
         u = utility(c.strategy, gain, cost, cands.saliency, c.lam, self.rng)
         reachable = np.isfinite(cost)
         best = int(np.argmax(u)) if reachable.any() else None
@@ -394,4 +448,5 @@ class Planner:
             reason,
             times,
             detail,
+            looked_around,
         )

@@ -139,3 +139,43 @@ def test_paths_go_round_where_the_platform_got_stuck(planner):
             pts = a[:2] + np.linspace(0, 1, 500)[:, None] * (b[:2] - a[:2])
             bump = np.array([paths.need + BLOCKED_RADIUS + 0.03, 0.0])
             assert np.linalg.norm(pts - bump, axis=1).min() >= paths.need + BLOCKED_RADIUS - voxel
+
+
+def test_a_platform_boxed_in_by_unseen_floor_looks_around_from_where_it_stands(planner):
+    """The kitchen's first view saw the table behind the robot's back; every view of its
+    view sphere lies beyond floor no view has seen (in the roi: no path). The robot turns
+    in place toward the direction with the most unknown space and looks, instead of ending
+    the episode with no candidate; where unknown floor is free to cross it does not."""
+    from dataclasses import replace
+
+    from services.nbv.planner import LOOK_DIRECTIONS
+
+    voxel, origin = 0.05, np.array([-3.0, -3.0, 0.0])
+    states = np.zeros((120, 120, 40), np.uint8)  # never seen
+    x = origin[0] + (np.arange(120) + 0.5) * voxel
+    states[x < -0.9] = 1  # seen and free: the part behind the robot at x = −1
+    roi = (np.array([-3.0, -3.0, 0.0]), np.array([3.0, 3.0, 2.0]))
+    config = planner.config
+    try:
+        planner.config = replace(config, roi=roi)
+        boxed = planner.plan(CENTRE[None], None, states, origin, voxel, (-1.0, 0.0, math.pi),
+                             np.zeros((1, 3)), 1)  # fmt: skip
+        planner.first_gain = None
+        planner.config = replace(config, roi=None)
+        free = planner.plan(CENTRE[None], None, states, origin, voxel, (-1.0, 0.0, math.pi),
+                            np.zeros((1, 3)), 1)  # fmt: skip
+    finally:
+        planner.config, planner.first_gain = config, None
+    around = boxed.candidates.base[-LOOK_DIRECTIONS:]
+    assert boxed.looked_around and boxed.best is not None and not boxed.terminate
+    assert np.isinf(boxed.cost[:-LOOK_DIRECTIONS]).all()  # no sphere view has a path
+    assert np.allclose(around[:, :2], [-1.0, 0.0])  # turned in place
+    b = boxed.best
+    assert b >= len(boxed.cost) - LOOK_DIRECTIONS
+    # toward the unknown half (+x), the turn its cost (π − |yaw| at 1 rad/s)
+    yaw = boxed.candidates.base[b, 2]
+    assert abs(yaw) < math.pi / 2, yaw
+    assert boxed.cost[b] == pytest.approx(math.pi - abs(yaw))
+    assert boxed.gain[b] > 0 and np.array_equal(boxed.path[:, :2], [[-1.0, 0.0]] * 2)
+    assert not free.looked_around and free.best is not None
+    assert np.linalg.norm(free.candidates.base[free.best, :2] - [-1.0, 0.0]) > 0.5  # it drives
