@@ -188,7 +188,11 @@ def markdown(rows: list[dict]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenes", type=int, default=30)
-    parser.add_argument("--first-seed", type=int, default=1000)
+    parser.add_argument(
+        "--first-seed", "--seed-base", dest="first_seed", type=int, default=1000,
+        help="the first generated scene's seed; the scenes are this and the next --scenes - 1 "
+        "(--seed-base 5000: a second subset, disjoint from the default's 1000-1029)",
+    )  # fmt: skip
     parser.add_argument("--views", type=int, default=6)
     parser.add_argument(
         "--noise", choices=["on", "off"], default="on",
