@@ -609,6 +609,8 @@ REGISTRY: dict[str, Figure] = {
             render_generalization,
         ),
         Figure("real_data", "python benchmarks/real_data.py --out DIR", 17, render_real_data),
+        # the peer on real_data's drifted redkitchen-a: one key=value line, rendered alike
+        Figure("pose_graph", "python benchmarks/pose_graph.py --out DIR", 3, render_real_data),
         Figure(
             "live_explore",
             "python benchmarks/live_explore.py --scenes 5 --out DIR",
