@@ -1098,7 +1098,9 @@ class Fusion:
         box fitted to 2 m away Kinect points reaches centimetres past them). A primitive
         held by a and by m that a holds rests on m alone when its bottom is ``nearer_top``
         nearer m's top (support is direct: the thesis's graph has no edge that a chain of
-        two gives)."""
+        two gives). Structure (``_structure``: a wall, a cabinet's front) rests on nothing
+        higher than the floor: a counter against a wall touches it, its top below the wall's
+        visible foot, and seemed to hold it up."""
         c = self.config
         shapes = shapes or _Shapes()
         level, z_range = shapes.level_area, shapes.z_range
@@ -1113,6 +1115,8 @@ class Fusion:
                 continue
             if bodies[b].bottom < bodies[a].top - c.rest_tolerance:
                 continue
+            if z_range(pa.obb)[1] > c.floor_max and self._structure(pb, shapes):
+                continue  # a wall stands on the floor, not on the counter against it
             out[a, b] = n
         return _direct(out, bodies, c.nearer_top)
 

@@ -84,3 +84,24 @@ def test_what_lies_on_a_tray_on_a_table_rests_on_the_tray_alone():
         # the model's edges are these, and all four rest
         model = fusion.scene_model()
         assert len(model.support_edges) == len(expected) and not model.unstable_ids
+
+
+def test_a_wall_behind_a_counter_does_not_rest_on_the_counter():
+    """The kitchen's back wall, seen above the counter that hides its foot: a view reported
+    counter → wall (they touch, the wall's visible bottom at the counter's top). Structure
+    rests on nothing above the floor; the floor's own edge to it stays."""
+    T = facing_wall(2.0)
+    floor = plane(0, (0.5, 2.99), (-1.0, 1.0), 0.0)
+    counter = plane(1, (2.4, 2.99), (-1.0, 1.0), 0.9)  # its top, against the wall
+    room = wall(2, (-1.0, 1.0), 3.0, (0.9, 2.0))  # the wall above the counter
+    jar = box(3, (2.7, 0.0, 0.98), (0.1, 0.1, 0.16))
+    edges = [(1, 2), (0, 2), (1, 3), (0, 1)]
+    rests = {("floor", "counter"), ("floor", "wall"), ("counter", "jar")}
+    # floor_max = ∞: everything counts as the floor's height, the rule never applies; the
+    # wall then rests on the counter (and, nearer its top, not on the floor: ``nearer_top``)
+    held = {("floor", "counter"), ("counter", "wall"), ("counter", "jar")}
+    for floor_max, expected in ((FusionConfig.floor_max, rests), (np.inf, held)):
+        fusion = Fusion(FusionConfig(floor_max=floor_max))
+        update = fusion.update(observation(0, [floor, counter, room, jar], edges, T=T))
+        name = {update.mapping[i]: n for i, n in enumerate(["floor", "counter", "wall", "jar"])}
+        assert {(name[a], name[b]) for a, b in fusion.support()} == expected
