@@ -44,55 +44,35 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.real_data import DRIFT, default_data, revisit_errors, revisits  # noqa: E402
+from benchmarks.real_data import (  # noqa: E402
+    DRIFT,
+    ICP_PASSES,
+    default_data,
+    depth_clouds,
+    error_plot,
+    pairwise_icp,
+    revisit_errors,
+    revisits,
+)
 from services.adapters.dataset.drift import Drift  # noqa: E402
 from services.adapters.dataset.formats import read  # noqa: E402
 from services.adapters.dataset.frames import DatasetFrames  # noqa: E402
 from services.adapters.dataset.gravity import level_frame  # noqa: E402
-from services.scene_memory.config import SceneMemorySettings  # noqa: E402
-from services.scene_memory.memory import MemoryConfig  # noqa: E402
-from services.scene_memory.registration import camera_points  # noqa: E402
-
-#: coarse to fine: ICP's reach and Tukey's k, m
-PASSES = ((0.08, 0.04), (0.04, 0.02), (0.02, 0.01))
 
 
 def log(text: str) -> None:
     print(f"[pose_graph] {text}", file=sys.stderr, flush=True)
 
 
-def clouds(frames: DatasetFrames) -> tuple[list, list]:
-    """Per played frame: the source cloud (2 cm) and the target cloud (1.5 cm, normals)."""
-    import open3d as o3d
-
-    depth_min = MemoryConfig().depth_min
-    depth_max = SceneMemorySettings.model_fields["max_range"].default
-    sources, targets = [], []
-    for seq, i in enumerate(frames.indices()):
-        f = frames.frame(i, seq)
-        pts = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
-            camera_points(f.depth, f.intrinsics, depth_min, depth_max)))  # fmt: skip
-        sources.append(pts.voxel_down_sample(0.02))
-        target = pts.voxel_down_sample(0.015)
-        target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.04, max_nn=30))
-        targets.append(target)
-    return sources, targets
-
-
 def icp(source, target, T0: np.ndarray):
-    """Point-to-plane ICP with Tukey's loss, coarse to fine from ``T0`` (source → target)."""
+    """``pairwise_icp`` (source → target), its fitness and information matrix."""
     import open3d as o3d
 
-    reg = o3d.pipelines.registration
-    T, result = T0, None
-    for reach, kernel in PASSES:
-        result = reg.registration_icp(
-            source, target, reach, T,
-            reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=kernel)),
-            reg.ICPConvergenceCriteria(max_iteration=50),
-        )  # fmt: skip
-        T = result.transformation
-    info = reg.get_information_matrix_from_point_clouds(source, target, PASSES[-1][0], T)
+    result = pairwise_icp(source, target, T0)
+    T = result.transformation
+    info = o3d.pipelines.registration.get_information_matrix_from_point_clouds(
+        source, target, ICP_PASSES[-1][0], T
+    )
     return T, result.fitness, info
 
 
@@ -127,7 +107,7 @@ def pose_graph(
         if (k + 1) % 20 == 0:
             log(f"loop closures {k + 1}/{len(loops)} ({kept} kept)")
     option = reg.GlobalOptimizationOption(
-        max_correspondence_distance=PASSES[-1][0], edge_prune_threshold=0.25,
+        max_correspondence_distance=ICP_PASSES[-1][0], edge_prune_threshold=0.25,
         preference_loop_closure=1.0, reference_node=0,
     )  # fmt: skip
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
@@ -151,22 +131,9 @@ def errors_mm(poses: list[np.ndarray], reference: list[np.ndarray]) -> list[floa
 
 
 def plot(name: str, per_frame: dict[str, list[float]], path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 3.2))
-    for label, values in per_frame.items():
-        ax.plot(values, label=label)
-    ax.axhline(10, color="grey", lw=0.8, ls="--", label="target 10 mm")
-    ax.set_xlabel("frame")
-    ax.set_ylabel("camera position error vs reference, mm")
-    ax.set_title(f"{name}: Open3D pose graph, drift {DRIFT.mm} mm, {DRIFT.deg}° a frame")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    curves = [(np.arange(len(v)), v, {"label": k}) for k, v in per_frame.items()]
+    error_plot(f"{name}: Open3D pose graph, drift {DRIFT.mm} mm, {DRIFT.deg}° a frame",
+               "camera position error vs reference, mm", curves, path)  # fmt: skip
 
 
 def main() -> None:
@@ -186,7 +153,7 @@ def main() -> None:
     reference = [frames.pose(i) for i in indices]
     drifted = [frames.published_pose(i, seq) for seq, i in enumerate(indices)]
     log(f"{args.data.name}: {len(indices)} frames")
-    sources, targets = clouds(frames)
+    sources, targets = depth_clouds(frames)
     sets = pose_graph(sources, targets, drifted, args.gap, args.fitness)
     per_frame = {
         "drift": errors_mm(drifted, reference),
@@ -194,8 +161,8 @@ def main() -> None:
         "graph": errors_mm(sets["graph"], reference),
     }
     log("revisits: the reference and the graph against the depth")
-    frames.drift = None  # revisit_errors reads the frames' depth only; the sets are given
-    revisit = revisit_errors(frames, {"reference": reference, "graph": sets["graph"]})
+    revisit = revisit_errors(frames, {"reference": reference, "graph": sets["graph"]},
+                             clouds=(sources, targets))  # fmt: skip
     out = {
         "recording": args.data.name,
         "frames": len(indices),

@@ -327,24 +327,18 @@ def revisits(
     return out[::step]
 
 
-def revisit_errors(
-    frames: DatasetFrames, sets: dict[str, list[np.ndarray]], gap: int = 20,
-    overlap: float = 0.6, at_most: int = 40,
-) -> dict:  # fmt: skip
-    """How well each set of camera poses (``sets``, the played frames' poses, by name; one
-    must be ``reference``) agrees with the depth where the camera came back to a place it saw
-    ``gap`` frames or more before: for such pairs of frames (their views overlapping at the
-    reference poses, ``revisits``), the relative pose the two depth frames give by themselves
-    (Open3D's point-to-plane ICP of the one on the other, Tukey's loss, coarse to fine from the
-    set's relative pose: no code of the memory's registration) against the set's (mm, the
-    first camera's position; median over the pairs). The reference only chooses the pairs:
-    a set whose frames are placed consistently scores the depth's own pairwise noise (~1 cm
-    on a Kinect v1), one that walked scores the walk between the two visits."""
+#: pairwise ICP on depth alone, coarse to fine: its reach and Tukey's k, m
+ICP_PASSES = ((0.08, 0.04), (0.04, 0.02), (0.02, 0.01))
+
+
+def depth_clouds(frames: DatasetFrames) -> tuple[list, list]:
+    """Per played frame, its depth in its camera's frame (``camera_points``, the scene
+    memory's depth range) as Open3D clouds: the source side at 2 cm, the target side at
+    1.5 cm with normals."""
     import open3d as o3d
 
-    reg = o3d.pipelines.registration
     m, depth_max = MemoryConfig(), SceneMemorySettings.model_fields["max_range"].default
-    clouds, sources, targets = [], [], []
+    sources, targets = [], []
     for seq, i in enumerate(frames.indices()):
         f = frames.frame(i, seq)
         pts = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(
@@ -353,20 +347,49 @@ def revisit_errors(
         target = pts.voxel_down_sample(0.015)
         target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.04, max_nn=30))
         targets.append(target)
-        clouds.append(np.asarray(sources[-1].points))
-    pairs = revisits(clouds, sets["reference"], gap, overlap, at_most)
+    return sources, targets
+
+
+def pairwise_icp(source, target, T0: np.ndarray):
+    """Open3D's point-to-plane ICP with Tukey's loss, coarse to fine (``ICP_PASSES``) from
+    ``T0`` (source → target): its last result (transformation, fitness)."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    result, T = None, T0
+    for reach, kernel in ICP_PASSES:
+        result = reg.registration_icp(
+            source, target, reach, T,
+            reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=kernel)),
+            reg.ICPConvergenceCriteria(max_iteration=50),
+        )  # fmt: skip
+        T = result.transformation
+    return result
+
+
+def revisit_errors(
+    frames: DatasetFrames, sets: dict[str, list[np.ndarray]], gap: int = 20,
+    overlap: float = 0.6, at_most: int = 40, clouds: tuple[list, list] | None = None,
+) -> dict:  # fmt: skip
+    """How well each set of camera poses (``sets``, the played frames' poses, by name; one
+    must be ``reference``) agrees with the depth where the camera came back to a place it saw
+    ``gap`` frames or more before: for such pairs of frames (their views overlapping at the
+    reference poses, ``revisits``), the relative pose the two depth frames give by themselves
+    (``pairwise_icp`` of the one on the other from the set's relative pose: no code of the
+    memory's registration) against the set's (mm, the first camera's position; median over
+    the pairs). The reference only chooses the pairs: a set whose frames are placed
+    consistently scores the depth's own pairwise noise (~1 cm on a Kinect v1), one that
+    walked scores the walk between the two visits. ``clouds``: ``depth_clouds(frames)``
+    when already at hand."""
+    sources, targets = clouds or depth_clouds(frames)
+    points = [np.asarray(s.points) for s in sources]
+    pairs = revisits(points, sets["reference"], gap, overlap, at_most)
     out: dict = {"revisits": len(pairs)}
     for name, poses in sets.items():
         errors = []
         for i, j in pairs:
             rel = np.linalg.inv(poses[j]) @ poses[i]
-            T = rel
-            for reach, kernel in ((0.08, 0.04), (0.04, 0.02), (0.02, 0.01)):
-                T = reg.registration_icp(
-                    sources[i], targets[j], reach, T,
-                    reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=kernel)),
-                    reg.ICPConvergenceCriteria(max_iteration=50),
-                ).transformation  # fmt: skip
+            T = pairwise_icp(sources[i], targets[j], rel).transformation
             errors.append(float(np.linalg.norm(T[:3, 3] - rel[:3, 3])) * 1e3)
         out[f"revisit_mm_{name}"] = round(float(np.median(errors)), 1) if errors else math.nan
         out[f"revisit_mm_{name}_all"] = [round(e, 1) for e in errors]
@@ -503,28 +526,43 @@ def drift_line(name: str, drift: dict) -> str:
     return " ".join([f"recording={name}", *(f"{k}={drift[k]}" for k in keys)])
 
 
-def plot(name: str, drifts: dict[str, dict], path: Path) -> None:
+def error_plot(title: str, ylabel: str, curves: list[tuple], path: Path) -> None:
+    """Camera position error per frame against the 10 mm target: ``curves`` of (x, y, the
+    plot's keywords), one per line."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 3.2))
-    for i, (dof, drift) in enumerate(drifts.items()):
-        rows = np.array(drift["per_frame"])
-        if i == 0:
-            ax.plot(rows[:, 0], rows[:, 3], color="k", label="without registration (the drift)")
-        ax.plot(rows[:, 0], rows[:, 1], label=f"{dof}: against the reference")
-        ax.plot(rows[:, 0], drift["drift_residual_per_frame_mm"], ls=":",
-                label=f"{dof}: against registration without drift")  # fmt: skip
+    for x, y, style in curves:
+        ax.plot(x, y, **style)
     ax.axhline(10, color="grey", lw=0.8, ls="--", label="target 10 mm")
     ax.set_xlabel("frame")
-    ax.set_ylabel("camera position error, mm")
-    ax.set_title(f"{name}: drift {DRIFT.mm} mm, {DRIFT.deg}° a frame")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def plot(name: str, drifts: dict[str, dict], path: Path) -> None:
+    curves = []
+    for i, (dof, drift) in enumerate(drifts.items()):
+        rows = np.array(drift["per_frame"])
+        x = rows[:, 0]
+        if i == 0:
+            curves.append(
+                (x, rows[:, 3], {"color": "k", "label": "without registration (the drift)"})
+            )
+        curves.append((x, rows[:, 1], {"label": f"{dof}: against the reference"}))
+        residual = drift["drift_residual_per_frame_mm"]
+        curves.append(
+            (x, residual, {"ls": ":", "label": f"{dof}: against registration without drift"})
+        )
+    title = f"{name}: drift {DRIFT.mm} mm, {DRIFT.deg}° a frame"
+    error_plot(title, "camera position error, mm", curves, path)
 
 
 def main() -> None:
