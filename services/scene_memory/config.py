@@ -57,6 +57,20 @@ class SceneMemorySettings(ServiceSettings):
         "about the world's vertical; the camera's height, roll and pitch are the kinematics' "
         "and are kept), or 'full', all six (a hand-held camera, a platform that is not level)",
     )
+    odometry_noise: float = Field(
+        0.0,
+        ge=0,
+        description="… the odometry's error as a share of the camera's motion (0.02: 2 %% of "
+        "the distance and of the turn): each registration is then weighed against it and "
+        "registration_noise in a Kalman filter, and refused where neither explains it "
+        "(χ² 99.9 %%); 0: each registration is taken as it comes (thesis A.5)",
+    )
+    registration_noise: list[float] = Field(
+        [0.02, 1.0],
+        min_length=2,
+        max_length=2,
+        description="… a registration's error σ with odometry_noise: m,degrees",
+    )
     registration_interval: float = Field(
         0.5,
         ge=0,

@@ -12,6 +12,7 @@ import numpy as np
 
 from schemas import CloudFrame, PointCloud, RgbdFrame, SceneModel, SceneObservation
 from services.scene_memory.cloud_merge import add_frame
+from services.scene_memory.correction_filter import CorrectionFilter
 from services.scene_memory.fusion import Fusion, FusionConfig, Update, voxel_keys
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap
 from services.scene_memory.registration import (
@@ -28,6 +29,9 @@ REGISTERED_CAMERA = "registered"
 MAX_ROI_CLOUD = 60_000
 #: ``SceneMemory.fuse``'s default correction: the last registration's
 LAST = object()
+#: the reason a registration was refused that the odometry's uncertainty and the
+#: registration's own cannot explain (``CorrectionFilter.mahalanobis``)
+INCONSISTENT = "inconsistent_with_odometry"
 #: the reason a frame was not registered: the last registration is more recent than
 #: ``MemoryConfig.registration_interval`` (the frame took the last correction)
 NOT_DUE = "not_due"
@@ -76,6 +80,9 @@ class SceneMemory:
     #: what frames are registered against (``registration``): built as frames are integrated,
     #: rebuilt from the registered cloud for a snapshot written before it existed
     registration_map: RegistrationMap | None = None
+    #: the correction and its uncertainty (``RegistrationConfig.odometry_noise``; None: not
+    #: weighed, or no frame yet)
+    correction_filter: CorrectionFilter | None = None
     #: (n, 3) float32: the optical centre each point of ``cloud`` was seen from (None: a
     #: snapshot from before they were kept)
     viewpoints: np.ndarray | None = None
@@ -224,6 +231,13 @@ class SceneMemory:
         T_odom = np.asarray(frame.T_world_camera, float)
         prior = T_odom if self.T_world_odom is None else self.T_world_odom @ T_odom
         c = self.config.registration
+        weigh = c is not None and c.odometry_noise is not None
+        if weigh:
+            if self.correction_filter is None:
+                self.correction_filter = CorrectionFilter(
+                    c.dof, c.odometry_noise, c.registration_noise, self.T_world_odom
+                )
+            self.correction_filter.predict(T_odom)
         if c is None or len(self.cloud) == 0:
             return prior, len(self.cloud) == 0
         if not self.registration_due(frame.stamp):
@@ -243,8 +257,18 @@ class SceneMemory:
         if not result.accepted:
             self.registrations_refused += 1
             return prior, False
-        self.T_world_odom = result.T_world_camera @ np.linalg.inv(T_odom)
-        return result.T_world_camera, True
+        measured = result.T_world_camera @ np.linalg.inv(T_odom)
+        f = self.correction_filter
+        if weigh and f is not None:
+            d2 = f.mahalanobis(measured)
+            self.last_registration["mahalanobis"] = d2
+            if d2 > c.max_mahalanobis[c.dof]:
+                self.last_registration |= {"accepted": False, "reason": INCONSISTENT}
+                self.registrations_refused += 1
+                return prior, False
+            measured = f.update(measured)
+        self.T_world_odom = measured
+        return measured @ T_odom, True
 
     def will_register(self, frame: RgbdFrame) -> bool:
         """Whether integrating ``frame`` would register it (and so may move ``T_world_odom``):

@@ -37,6 +37,7 @@ from services.common.realtime import BACKGROUND, FOREGROUND
 from services.common.standby import wait_for_turn
 from services.scene_memory import cloud_merge, fusion, occupancy
 from services.scene_memory.config import SceneMemorySettings
+from services.scene_memory.correction_filter import OdometryNoise, RegistrationNoise
 from services.scene_memory.fusion import FusionConfig
 from services.scene_memory.memory import (
     REGISTERED_CAMERA,
@@ -70,6 +71,18 @@ def unpack_observation(payload: bytes) -> tuple[bytes, np.ndarray | None]:
     return content["observation"], None if T is None else np.array(T, float).reshape(4, 4)
 
 
+def registration_config(s: SceneMemorySettings) -> RegistrationConfig:
+    """The registration the settings ask for, weighed against the odometry where they give
+    its error (``odometry_noise`` > 0: ``correction_filter``)."""
+    a = s.odometry_noise
+    m, deg = s.registration_noise
+    return RegistrationConfig(
+        dof=s.registration_dof,
+        odometry_noise=OdometryNoise.share(a) if a > 0 else None,
+        registration_noise=RegistrationNoise(m, deg),
+    )
+
+
 def new_memory(s: SceneMemorySettings) -> SceneMemory:
     return SceneMemory(
         MemoryConfig(
@@ -81,7 +94,7 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
             map_stride=s.map_stride,
             keyframe_move=s.keyframe_move,
             keyframe_turn=s.keyframe_turn,
-            registration=RegistrationConfig(dof=s.registration_dof) if s.registration else None,
+            registration=registration_config(s) if s.registration else None,
             registration_interval=s.registration_interval,
         )
     )

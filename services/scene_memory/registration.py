@@ -27,13 +27,14 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
 from schemas import BoxModel, CameraIntrinsics, CylinderModel, PlaneModel, SceneObservation
 from services.common.poses import pose_difference
+from services.scene_memory.correction_filter import OdometryNoise, RegistrationNoise
 from services.scene_memory.icp import FULL, PLANAR, candidates, icp, residuals
 from services.scene_memory.voxel_map import VoxelMap, means, summarise
 
@@ -103,6 +104,20 @@ class RegistrationConfig:
     sigma_ref: float = 0.003
     #: too few points on either side: nothing to register
     min_points: int = 200
+    #: the correction is a filter's state (``correction_filter``): each accepted registration
+    #: is weighed against the odometry's error since the last one (its motion model) and the
+    #: registration's own; None: each is taken as it comes (the thesis's A.5). Not the
+    #: default: where the odometry drifts more than its model says and the camera barely
+    #: moves (a platform drifting 1.2 cm a view while the head pans), a filter trusts it too
+    #: much; where registration errs by centimetres (a Kinect v1, redkitchen-a) it helps
+    odometry_noise: OdometryNoise | None = None
+    registration_noise: RegistrationNoise = field(default_factory=RegistrationNoise)
+    #: ... and refused when the odometry's uncertainty and the registration's cannot explain
+    #: it: its d² (``CorrectionFilter.mahalanobis``) beyond the χ² 99.9 % quantile of the
+    #: unknowns (3: 16.3, 6: 22.5)
+    max_mahalanobis: dict[str, float] = field(
+        default_factory=lambda: {"planar": 16.27, "full": 22.46}
+    )
 
 
 class RegistrationMap:

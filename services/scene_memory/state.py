@@ -24,7 +24,14 @@ import numpy as np
 from pydantic import BaseModel
 
 from schemas import scene as scene_schemas
-from services.scene_memory import fusion, memory, occupancy, registration, voxel_map
+from services.scene_memory import (
+    correction_filter,
+    fusion,
+    memory,
+    occupancy,
+    registration,
+    voxel_map,
+)
 
 MAGIC = b"AVS-SCENE-MEMORY\x00"
 VERSION = 1
@@ -44,6 +51,9 @@ ALLOWED: dict[str, type] = {
         registration.RegistrationConfig,
         registration.Pass,
         registration.RegistrationMap,
+        correction_filter.CorrectionFilter,
+        correction_filter.OdometryNoise,
+        correction_filter.RegistrationNoise,
         voxel_map.VoxelMap,
     )
 }

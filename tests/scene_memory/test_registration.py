@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from schemas import CameraIntrinsics, Keys, PoseCorrection, decode, encode
-from services.scene_memory.memory import NOT_DUE, MemoryConfig, SceneMemory
+from services.scene_memory.correction_filter import OdometryNoise
+from services.scene_memory.memory import INCONSISTENT, NOT_DUE, MemoryConfig, SceneMemory
 from services.scene_memory.occupancy import OccupancyConfig
 from services.scene_memory.registration import (
     RegistrationConfig,
@@ -319,3 +320,37 @@ def test_a_refused_frame_is_not_what_the_next_one_registers_to(updates):
     T = memory.T_world_odom @ drift(1, 0.02, 1.0) @ T_true
     moved, turned = pose_difference(T_true, T)
     assert moved <= 0.005 and turned <= 0.3, (moved, turned)
+
+
+@pytest.mark.parametrize("weighed", [True, False])
+def test_a_registration_the_odometry_cannot_explain_is_refused_where_it_is_weighed(
+    updates, weighed
+):
+    """The six views' frames twice: the first pass maps them at their true poses; then the
+    first view again with its odometry pose 9 cm off, as if the platform had been carried
+    without its wheels turning. ICP finds the offset (within ``max_correction_m``); weighed
+    against a 2 % odometry that has not moved since the last frame (σ ≈ 0), no registration
+    error (σ 2 cm) explains 9 cm (d² ≈ 20 > 16.3): refused, the correction kept. Taken as it
+    comes, it is accepted."""
+    frames = [m for kind, m in updates if kind == "frame"]
+    odometry = OdometryNoise.share(0.02) if weighed else None
+    config = MemoryConfig(bounds_min=tuple(BOUNDS_MIN), bounds_max=tuple(BOUNDS_MAX),
+                          occupancy=OccupancyConfig(voxel=VOXEL),
+                          registration=RegistrationConfig(odometry_noise=odometry))  # fmt: skip
+    memory = SceneMemory(config)
+    for f in frames:
+        memory.integrate(f)
+    assert memory.registrations_refused == 0
+    last = frames[-1]
+    memory.integrate(last)  # the filter's last pose: no motion since
+    carried = last.model_copy(update={"T_world_camera": drift(1, 0.08, 0.0) @ last.T_world_camera})
+    before = memory.T_world_odom.copy()
+    memory.integrate(carried)
+    if weighed:
+        assert memory.last_registration["reason"] == INCONSISTENT
+        assert memory.last_registration["mahalanobis"] > 16.27
+        assert np.allclose(memory.T_world_odom, before)
+    else:
+        assert memory.last_registration["accepted"], memory.last_registration
+        T = memory.T_world_odom @ carried.T_world_camera
+        assert pose_difference(np.asarray(last.T_world_camera), T)[0] < 0.005
