@@ -608,7 +608,7 @@ REGISTRY: dict[str, Figure] = {
             15,
             render_generalization,
         ),
-        Figure("real_data", "python benchmarks/real_data.py --out DIR", 17, render_real_data),
+        Figure("real_data", "python benchmarks/real_data.py --out DIR", 24, render_real_data),
         # the peer on real_data's drifted redkitchen-a: one key=value line, rendered alike
         Figure("pose_graph", "python benchmarks/pose_graph.py --out DIR", 3, render_real_data),
         Figure(

@@ -16,14 +16,14 @@ whole recording (so that every frame is perceived, however slow):
   share whose support is unresolved (``unresolved_ids``: none found, none seen under them);
 - **drift** run, where the recording has poses, once per ``--dof`` (the registration's
   unknowns, ``AVS_SCENE_MEMORY_REGISTRATION_DOF``: ``planar``, a ground platform's x, y and
-  yaw, or ``full``): the same with ``--drift 0.5,0.02`` (the k-th frame's pose moved k·0.5 mm
-  along +x and turned k·0.02° of yaw about the first camera's vertical:
-  ``services/adapters/dataset/drift.py``) and the memory's view registration on
-  (``AVS_SCENE_MEMORY_REGISTRATION=true``, each registration weighed against an odometry
-  that errs by ``--odometry-noise`` of the motion, default 2 %: ``correction_filter.py``; 0
-  takes each as it comes, as the memory does by default; its other settings at their
-  defaults: every 0.5 s of the recording's stamps; but every frame integrated, no keyframe
-  policy: it decides on the
+  yaw, or ``full``) and once more per ``--weighed-dof`` (default planar) with each
+  registration weighed against an odometry that errs by ``--odometry-noise`` (2 %) of the
+  motion (``AVS_SCENE_MEMORY_ODOMETRY_NOISE``, ``correction_filter.py``; by default the memory
+  takes each as it comes): the same with ``--drift 0.5,0.02`` (the k-th frame's pose moved
+  k·0.5 mm along +x and turned k·0.02° of yaw about the first camera's vertical, moving or
+  not: ``services/adapters/dataset/drift.py``) and the memory's view registration on
+  (``AVS_SCENE_MEMORY_REGISTRATION=true``, its other settings at their defaults: every 0.5 s
+  of the recording's stamps; but every frame integrated, no keyframe policy: it decides on the
   drifted pose, and 0.5 mm can take a frame across its 3 cm, so the drifted and the still run
   would integrate different frames). The camera pose the memory holds for a frame is its
   ``memory/pose_correction`` (``T_world_odom``, the last accepted correction) times the pose
@@ -49,8 +49,8 @@ recording=<name> frames=<n> observations=<n> perception_ms=<median> primitives=<
 plane=<n> cylinder=<n> sphere=<n> box=<n> level_planes_m=<h>x<n>,… unstable_share=<x>
 unresolved_share=<x>
 
-recording=<name> dof=<planar|full> odometry_noise=<a> pose_error_mm=<x> pose_error_deg=<x>
-pose_error_mm_median=<x> pose_error_mm_max=<x> drift_error_mm=<x>
+recording=<name> dof=<planar|full> odometry_noise=<a: 0 taken as they come> pose_error_mm=<x>
+pose_error_deg=<x> pose_error_mm_median=<x> pose_error_mm_max=<x> drift_error_mm=<x>
 drift_error_deg=<x> drift_residual_mm=<x> drift_residual_deg=<x> drift_residual_mm_max=<x>
 still_pose_error_mm=<x> mapped=<n> registered=<n> refused=<n> still_mapped=<n>
 still_registered=<n> same_frames=<yes|no> reference_offset_mm_median=<x>
@@ -604,10 +604,17 @@ def main() -> None:
         default=["planar", "full"],
         help="the registration's unknowns, a drift and a still run each",
     )
+    parser.add_argument(
+        "--weighed-dof",
+        nargs="*",
+        choices=("planar", "full"),
+        default=["planar"],
+        help="these unknowns again, each registration "
+        "weighed against the odometry's error (--odometry-noise)",
+    )
     parser.add_argument("--odometry-noise", type=float, default=ODOMETRY_NOISE,
-                        help="the odometry's error as a share of the motion the registration "
-                        "runs weigh each registration against (AVS_SCENE_MEMORY_ODOMETRY_NOISE;"
-                        " 0: each taken as it comes)")  # fmt: skip
+                        help="the odometry's error as a share of the motion, for the weighed "
+                        "runs (AVS_SCENE_MEMORY_ODOMETRY_NOISE)")  # fmt: skip
     args = parser.parse_args()
     if not args.data.is_dir():
         raise SystemExit(f"real_data: no recordings at {args.data} (see --data)")
@@ -622,23 +629,26 @@ def main() -> None:
         print(lines[-1], flush=True)
         drifts: dict[str, dict] = {}
         if read(root).poses is not None:
-            for dof in args.dof:
+            variants = [(dof, 0.0) for dof in args.dof]
+            variants += [(dof, args.odometry_noise) for dof in args.weighed_dof]
+            for dof, noise in variants:
+                key = f"{dof}, weighed" if noise else dof
                 runs = {}
                 for tag, drift in (("still", None), ("drift", DRIFT)):
-                    print(f"real_data: {root.name}: {tag} run (registration on, {dof})",
+                    print(f"real_data: {root.name}: {tag} run (registration on, {key})",
                           file=sys.stderr, flush=True)  # fmt: skip
                     runs[tag] = run_recording(root, args.out, drift=drift, registration=True,
                                               rate=args.rate, limit=args.limit,
-                                              tag=f"{tag}_{dof}", dof=dof,
-                                              offsets=tag == "drift",
-                                              odometry_noise=args.odometry_noise)  # fmt: skip
+                                              tag=f"{tag}_{dof}{'_weighed' if noise else ''}",
+                                              dof=dof, offsets=tag == "drift",
+                                              odometry_noise=noise)  # fmt: skip
                 if not np.allclose(runs["still"]["T_up"], runs["drift"]["T_up"], atol=1e-9):
                     print(f"real_data: {root.name}: the runs found different T_up",
                           file=sys.stderr)  # fmt: skip
-                drifts[dof] = runs["drift"] | drift_residual(runs["drift"], runs["still"])
-                print(f"real_data: {root.name}: revisits ({dof})", file=sys.stderr, flush=True)
-                drifts[dof] |= held_revisits(root, runs["drift"], args.limit)
-                lines.append(drift_line(root.name, drifts[dof]))
+                drifts[key] = runs["drift"] | drift_residual(runs["drift"], runs["still"])
+                print(f"real_data: {root.name}: revisits ({key})", file=sys.stderr, flush=True)
+                drifts[key] |= held_revisits(root, runs["drift"], args.limit)
+                lines.append(drift_line(root.name, drifts[key]))
                 print(lines[-1], flush=True)
             plot(root.name, drifts, args.out / f"real_data_{root.name}.png")
         results[root.name] = {"model": model, "drift": drifts}
