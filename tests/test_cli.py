@@ -88,6 +88,7 @@ def test_echo_prints_valid_messages_and_counts_invalid_ones(router, client, proc
         [*AVS, "echo", "sensors/imu"],
         env=avs_env(router, AVS_INSTANCE="e1"),
         stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
         text=True,
     )
     publisher = matched_publisher(client, keys.imu(), timeout=30)  # echo is up and listening
@@ -105,8 +106,10 @@ def test_echo_prints_valid_messages_and_counts_invalid_ones(router, client, proc
     assert sum(m.dropped.values()) == 3 and m.dropped["wrong_version"] == 1
     assert echo.poll() is None  # still running after garbage
     echo.send_signal(signal.SIGINT)
-    out, _ = echo.communicate(timeout=20)
+    out, err = echo.communicate(timeout=20)
     assert echo.returncode == 0
+    assert "3 payloads on avs/armar6/sensors/imu were not valid messages" in err, err
+    assert "wrong_version=1" in err
     lines = [json.loads(line) for line in out.splitlines()]
     assert [line["message"]["seq"] for line in lines] == [0, 1, 2, 3, 4]
     assert lines[0]["key"] == keys.imu()
@@ -132,6 +135,33 @@ def test_echo_count_exits_by_itself(router, client, procs):
     out, _ = echo.communicate(timeout=20)
     assert echo.returncode == 0
     assert len(out.splitlines()) == 2
+
+
+def test_echo_stops_quietly_when_its_reader_closes_the_pipe(router, client, procs):
+    """``avs echo KEY | head -c 100``: once the reader has its 100 bytes and closes the pipe,
+    echo exits by itself with status 0, no traceback, no BrokenPipeError warning and no
+    "invalid" count (the failed writes were not bad payloads)."""
+    keys = Keys()
+    echo = procs.start(
+        [*AVS, "echo", "sensors/imu"],
+        env=avs_env(router, AVS_INSTANCE="e3"),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    publisher = matched_publisher(client, keys.imu(), timeout=30)
+    publisher.put(encode(imu_sample(0)))
+    assert len(echo.stdout.read(100)) == 100
+    echo.stdout.close()  # what head does
+    i = 1
+    while echo.poll() is None and i < 400:
+        publisher.put(encode(imu_sample(i)))
+        i += 1
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            echo.wait(0.05)
+    assert echo.wait(20) == 0
+    err = echo.stderr.read().decode()
+    assert "Traceback" not in err and "BrokenPipe" not in err and "invalid" not in err, err
+    assert "not valid messages" not in err, err
 
 
 def test_up_runs_a_router_that_clients_reach_and_stops_on_sigint(procs, tmp_path):

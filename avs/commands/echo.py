@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import threading
 from typing import Any
@@ -89,20 +90,27 @@ def _echo(args: argparse.Namespace) -> int:
     key = args.key if args.key.startswith("avs/") else f"avs/{settings.robot}/{args.key}"
     done = threading.Event()
     printed = 0
+    closed = False  # the reader closed the pipe (``avs echo KEY | head``)
     lock = threading.Lock()
 
     with Node("echo", settings, connect(settings), announce=False) as node:
         node.install_signal_handlers()
 
         def show(message: Message, sample_key: str) -> None:
-            nonlocal printed
+            nonlocal printed, closed
             with lock:
                 if done.is_set():
                     return
                 body = {"key": sample_key, "message": to_jsonable(message, args.max_array)}
                 line = json.dumps(body, allow_nan=False)
-                sys.stdout.write(line + "\n")
-                sys.stdout.flush()
+                try:
+                    sys.stdout.write(line + "\n")
+                    sys.stdout.flush()
+                except (BrokenPipeError, ValueError):  # the reader is gone: stop, quietly
+                    closed = True
+                    done.set()
+                    node.stop()
+                    return
                 printed += 1
                 if args.count and printed >= args.count:
                     done.set()
@@ -111,7 +119,20 @@ def _echo(args: argparse.Namespace) -> int:
         node.subscribe(key, Message, show, name="echo", with_key=True)
         node.announce()
         node.spin(args.timeout or None)
-    dropped = node.metrics.dropped_total
-    if dropped:
-        print(f"avs echo: dropped {dropped} invalid payloads", file=sys.stderr)
+    if closed:
+        # what Python would flush at exit goes nowhere, instead of a BrokenPipeError warning
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
+    invalid = invalid_payloads(node.metrics.snapshot().dropped)
+    if invalid:
+        reasons = ", ".join(f"{reason}={n}" for reason, n in sorted(invalid.items()))
+        print(f"avs echo: {sum(invalid.values())} payloads on {key} were not valid messages "
+              f"and were not printed ({reasons})", file=sys.stderr)  # fmt: skip
     return 0
+
+
+def invalid_payloads(dropped: dict[str, int]) -> dict[str, int]:
+    """The drops that were payloads failing to decode (a codec's fault: ``not_msgpack``,
+    ``schema``, …), not this command's own trouble (a handler error)."""
+    return {r: n for r, n in dropped.items() if n and not r.startswith("handler_error")}
