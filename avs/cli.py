@@ -28,7 +28,7 @@ from avs.commands import (
     view,
     warm_up,
 )
-from avs.commands._args import OneLineParser
+from avs.commands._args import OneLineParser, explain
 from services.common.log import setup_logging
 
 COMMANDS = (
@@ -70,6 +70,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
         command.register(sub)
+    explain(parser)
     return parser
 
 

@@ -45,6 +45,36 @@ def test_every_command_has_help(command):
     assert "usage: avs" in out.stdout
 
 
+def _options(parser, path=()):
+    """(command, action) for every argument of every command."""
+    for action in parser._actions:
+        if action.__class__.__name__ == "_SubParsersAction":
+            for name, sub in action.choices.items():
+                yield from _options(sub, (*path, name))
+        elif action.dest != "help":
+            yield " ".join(path), action
+
+
+def test_every_option_says_what_it_is_and_its_default():
+    """Every argument of every command has help; ``avs explore --help`` shows the defaults
+    and names the built-in scenes and robots (``_args.SCENES`` and ``ROBOTS`` are the
+    simulator's)."""
+    from avs.commands._args import ROBOTS, SCENES
+    from services.sim.robots import ROBOTS as SIM_ROBOTS
+    from services.sim.scene import BUILTIN_SCENES
+
+    options = _options(build_parser())
+    silent = [f"{c} {a.option_strings or a.dest}" for c, a in options if not a.help]
+    assert not silent, silent
+    assert SCENES == BUILTIN_SCENES and set(ROBOTS) == set(SIM_ROBOTS)
+    out = subprocess.run([*AVS, "explore", "--help"], capture_output=True, text=True,
+                         timeout=60).stdout  # fmt: skip
+    flat = " ".join(out.split())
+    for shown in ("(default 10)", "(default tabletop_occluded)", "(default utility)",
+                  "(default armar6)", "(default 0)", "kitchen, localization", "booth"):  # fmt: skip
+        assert shown in flat, (shown, out)
+
+
 @pytest.mark.parametrize(
     "command",
     [
@@ -203,7 +233,10 @@ def test_up_scales_a_service_and_status_lists_every_instance(procs, tmp_path):
     assert sim["out"] > 100  # it has been publishing IMU samples
     table = subprocess.run([*AVS, "status", "--connect", endpoint], capture_output=True,
                            text=True, timeout=60)  # fmt: skip
-    assert "perception-1" in table.stdout and "uptime" in table.stdout
+    head, *body = table.stdout.splitlines()
+    assert head.split() == ["service", "instance", "uptime_s", "in", "out", "dropped"]
+    assert len(body) == 3 and all(len(line.split()) == 6 for line in body), table.stdout
+    assert "perception-1" in table.stdout and "{" not in table.stdout  # no Python dicts
     up.send_signal(signal.SIGINT)
     assert up.wait(30) == 0
 
@@ -232,3 +265,14 @@ def test_schema_export(tmp_path):
     )
     assert out.returncode == 0
     assert sorted(p.stem for p in tmp_path.glob("*.json")) == sorted(REGISTRY)
+
+
+def test_up_says_where_the_scene_memory_keeps_its_state(tmp_path):
+    from avs.commands.up import data_dir_note
+
+    empty = data_dir_note(tmp_path)
+    assert str((tmp_path / "scene_memory").resolve()) in empty and "starts empty" in empty
+    (tmp_path / "scene_memory").mkdir()
+    (tmp_path / "scene_memory" / "journal.bin").write_bytes(b"x")
+    held = data_dir_note(tmp_path)
+    assert "restores it" in held and "delete the folder" in held

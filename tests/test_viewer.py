@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import psutil
 import pyarrow as pa
 import pytest
 import rerun as rr
@@ -308,6 +309,13 @@ def test_view_web_is_loaded_by_chromium_and_records_the_ego_sphere(router, clien
         line = view.stdout.readline()
     url = line.split("web viewer:", 1)[1].strip()
     assert url.startswith(f"http://localhost:{web_port}/")
+    # the page and the data proxy listen on this machine only (--bind, default 127.0.0.1)
+    listening = {
+        (c.laddr.ip, c.laddr.port)
+        for c in psutil.net_connections(kind="inet")
+        if c.status == psutil.CONN_LISTEN and c.laddr.port in (web_port, grpc_port)
+    }
+    assert listening == {("127.0.0.1", web_port), ("127.0.0.1", grpc_port)}, listening
     with urllib.request.urlopen(url, timeout=10) as page:
         assert page.status == 200
         assert b"re_viewer" in page.read()

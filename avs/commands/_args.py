@@ -4,6 +4,51 @@ are one line."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+#: the built-in scenes (``services/sim/scenes/*.xml``) and robots, for the options' help
+#: without importing the simulator (``services.sim.scene.BUILTIN_SCENES``, ``ROBOTS``)
+_SCENES_DIR = Path(__file__).resolve().parents[2] / "services" / "sim" / "scenes"
+SCENES = tuple(sorted(p.stem for p in _SCENES_DIR.glob("*.xml")))
+ROBOTS = ("armar6", "armar3")
+
+
+def scene_help(what: str = "the scene") -> str:
+    return f"{what}: a built-in scene ({', '.join(SCENES)}) or an MJCF file"
+
+
+ROBOT_HELP = f"the robot ({', '.join(ROBOTS)})"
+
+
+class Help(argparse.RawDescriptionHelpFormatter):
+    """The description as written; every option's help ends with its default, where it has
+    one and the help does not already say it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        if (
+            default is None
+            or isinstance(default, bool)
+            or default == ""
+            or default is argparse.SUPPRESS
+            or not action.option_strings
+            or "default" in text
+        ):
+            return text
+        if isinstance(default, list | tuple):
+            default = ",".join(map(str, default))
+        shown = str(default).replace("%", "%%")
+        return f"{text} (default {shown})" if text else f"default {shown}"
+
+
+def explain(parser: argparse.ArgumentParser) -> None:
+    """``Help`` for ``parser`` and every subcommand's parser under it."""
+    parser.formatter_class = Help
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                explain(sub)
 
 
 class OneLineParser(argparse.ArgumentParser):

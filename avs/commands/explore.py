@@ -24,10 +24,13 @@ from pathlib import Path
 
 from avs.commands._args import (
     FUSIONS,
+    ROBOT_HELP,
+    ROBOTS,
     add_console_arguments,
     fusion_list,
     positive_float,
     positive_int,
+    scene_help,
 )
 from avs.console import log_to
 
@@ -35,11 +38,13 @@ from avs.console import log_to
 def _episode_arguments(
     p: argparse.ArgumentParser, fusions: bool = False, out: Path | None = None
 ) -> None:
-    p.add_argument("--scene", default="tabletop_occluded", help="scene name or MJCF file")
-    p.add_argument("--robot", default="armar6")
+    p.add_argument("--scene", default="tabletop_occluded", help=scene_help())
+    p.add_argument("--robot", default="armar6", choices=ROBOTS, help=ROBOT_HELP)
     p.add_argument(
-        "--sampling", choices=["equidistant", "random", "topdown"], default="equidistant"
-    )
+        "--sampling", choices=["equidistant", "random", "topdown"], default="equidistant",
+        help="the candidate views on the view sphere (thesis 4.3.1): evenly spread, at "
+        "random, or from above",
+    )  # fmt: skip
     if fusions:
         p.add_argument(
             "--fusion", type=fusion_list, default=["sg"], metavar="pc,sg,pc+sg",
@@ -47,7 +52,11 @@ def _episode_arguments(
             "each, keyed strategy/fusion, and fusion_f1.png plots F1 per view (Fig. 4.8)",
         )  # fmt: skip
     else:
-        p.add_argument("--fusion", choices=FUSIONS, default="sg")
+        p.add_argument(
+            "--fusion", choices=FUSIONS, default="sg",
+            help="how the views' support graphs combine (thesis 3.3): pc, the registered "
+            "cloud perceived again; sg, the graphs fused; pc+sg, both",
+        )  # fmt: skip
     p.add_argument("--views", type=positive_int, default=10, help="at most this many views (n)")
     p.add_argument("--voxel", type=positive_float, default=0.01, help="occupancy voxel, m")
     p.add_argument(
@@ -84,9 +93,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     _episode_arguments(p, out=Path("runs/explore"))
     p.add_argument(
-        "--strategy", choices=["utility", "occupancy", "random", "saliency"], default="utility"
-    )
-    p.add_argument("--seed", type=int, default=0)
+        "--strategy", choices=["utility", "occupancy", "random", "saliency"], default="utility",
+        help="how the next view is chosen: utility (information gain against path cost, Eq. "
+        "4.9), occupancy (unknown voxels only), random, saliency",
+    )  # fmt: skip
+    p.add_argument("--seed", type=int, default=0, help="seed of the sim's noise and sampling")
     p.add_argument(
         "--viewer", action="store_true",
         help="watch the episode live in rerun ('avs view'): the native viewer where there is "
@@ -104,7 +115,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _episode_arguments(c, fusions=True)
-    c.add_argument("--strategies", default="utility,occupancy,random")
+    c.add_argument(
+        "--strategies", default="utility,occupancy,random",
+        help="comma list of strategies (utility, occupancy, random, saliency)",
+    )  # fmt: skip
     c.add_argument(
         "--seeds", type=positive_int, default=5,
         help="seeds per strategy (default 5: the fewest whose medians get a 95 %% interval)",

@@ -25,7 +25,10 @@ def _xyz(text: str) -> list[float]:
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("explorer", help="start, pause, resume or stop the running explorer",
                        description=__doc__)  # fmt: skip
-    p.add_argument("op", choices=["start", "pause", "resume", "stop", "status"])
+    p.add_argument(
+        "op", choices=["start", "pause", "resume", "stop", "status"],
+        help="what to ask the running explorer",
+    )  # fmt: skip
     p.add_argument("--views", type=int, default=0, help="start: views at most (0: its setting)")
     p.add_argument("--roi-min", type=_xyz, metavar="X,Y,Z", help="start: the roi's low corner")
     p.add_argument("--roi-max", type=_xyz, metavar="X,Y,Z", help="start: … and its high one")

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from avs.commands._args import positive_float, positive_int
+from avs.commands._args import ROBOT_HELP, ROBOTS, positive_float, positive_int, scene_help
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,13 +36,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--scene", default="kitchen")
-    p.add_argument("--robot", default="armar6")
+    p.add_argument("--scene", default="kitchen", help=scene_help())
+    p.add_argument("--robot", default="armar6", choices=ROBOTS, help=ROBOT_HELP)
     p.add_argument("--path", default="orbit", help="orbit | line | FILE (JSON list of [x, y])")
-    p.add_argument("--views", type=positive_int, default=20)
-    p.add_argument("--fusion", choices=["pc", "sg", "pc+sg"], default="sg")
+    p.add_argument("--views", type=positive_int, default=20, help="views along the path")
+    p.add_argument(
+        "--fusion", choices=["pc", "sg", "pc+sg"], default="sg",
+        help="how the views' support graphs combine (thesis 3.3)",
+    )  # fmt: skip
     p.add_argument("--voxel", type=positive_float, default=0.01, help="occupancy voxel, m")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the sim's noise")
     p.add_argument(
         "--noise",
         choices=["on", "off"],

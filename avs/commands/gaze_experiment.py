@@ -12,6 +12,8 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
+from avs.commands._args import ROBOT_HELP, ROBOTS
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -19,13 +21,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="object localisation while moving, stabilised or not (thesis 5.4.1, Table 5.1)",
         description=__doc__,
     )
-    p.add_argument("--robot", default="armar3")
+    p.add_argument("--robot", default="armar3", choices=ROBOTS, help=ROBOT_HELP)
     p.add_argument("--scene", default="localization", help="scene name or MJCF file")
     p.add_argument("--disturbance", default="hip_yaw", help="the joint that swings")
     p.add_argument("--amplitude", type=float, default=20.0, help="A of q̇ = A·cos(2πft), deg/s")
     p.add_argument("--frequency", type=float, default=0.25, help="f, Hz")
     p.add_argument("--duration", type=float, default=10.0, help="s")
-    p.add_argument("--stabilize", choices=["on", "off"], default="on")
+    p.add_argument(
+        "--stabilize", choices=["on", "off"], default="on",
+        help="the gaze stabiliser holds the fixation point (thesis 5.3) or the head stays put",
+    )  # fmt: skip
     p.add_argument("--compare", action="store_true", help="run off and on, print Table 5.1")
     p.add_argument(
         "--noise", choices=["on", "off"], default="on",

@@ -27,7 +27,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
     )
     p.add_argument("--scene", default="grasping", help="scene name or MJCF file")
-    p.add_argument("--stabilize", choices=["on", "off"], default="on")
+    p.add_argument(
+        "--stabilize", choices=["on", "off"], default="on",
+        help="the gaze stabiliser holds the fixation point (thesis 5.3) or the head stays put",
+    )  # fmt: skip
     p.add_argument("--compare", action="store_true", help="run off and on, print Table 5.1")
     p.add_argument("--speed", type=float, default=0.15, help="platform speed, m/s")
     p.add_argument(

@@ -13,6 +13,8 @@ import sys
 
 import numpy as np
 
+from avs.commands._args import ROBOT_HELP, ROBOTS
+
 
 def _floats(n: int):
     def parse(text: str) -> list[float]:
@@ -29,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "perceive", help="perceive one rendered view and score it", description=__doc__
     )
     p.add_argument("--scene", default="tabletop_clutter", help="built-in name or MJCF file")
-    p.add_argument("--robot", default="armar6")
+    p.add_argument("--robot", default="armar6", choices=ROBOTS, help=ROBOT_HELP)
     p.add_argument("--base", type=_floats(3), metavar="X,Y,YAW", help="platform pose")
     p.add_argument("--torso", type=float, help="torso lift (armar6), m")
     p.add_argument(

@@ -12,7 +12,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "RGB-D camera and IMU",
         add_help=False,
     )
-    parser.add_argument("args", nargs=argparse.REMAINDER)
+    parser.add_argument("args", nargs=argparse.REMAINDER, help="its own options (see its --help)")
     parser.set_defaults(func=lambda args: run(list(args.args)))
 
 

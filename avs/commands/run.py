@@ -11,7 +11,7 @@ import json
 import sys
 from pathlib import Path
 
-from avs.commands._args import add_console_arguments, positive_int
+from avs.commands._args import add_console_arguments, positive_int, scene_help
 from avs.commands.explore import episode, summary, write_outputs
 from avs.console import log_to
 
@@ -23,15 +23,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--scene", default="tabletop_occluded")
-    parser.add_argument("--views", type=positive_int, default=10)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--scene", default="tabletop_occluded", help=scene_help())
+    parser.add_argument("--views", type=positive_int, default=10, help="at most this many views")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the sim's noise and sampling")
     parser.add_argument(
         "--noise", choices=["on", "off"], default="on",
         help="the robot's sensor models (depth noise, odometry drift, gyro, encoders; the scene "
         "memory registers the views) or the simulator's truth",
     )  # fmt: skip
-    parser.add_argument("--out", type=Path, default=Path("runs/explore"))
+    parser.add_argument(
+        "--out", type=Path, default=Path("runs/explore"),
+        help="where the metrics, plots and report.html go",
+    )  # fmt: skip
     add_console_arguments(parser)
     parser.set_defaults(func=_run)
 

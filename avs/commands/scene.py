@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "validate",
         help="print every problem of a scene file (exit 1 if any, 2 if it does not load)",
     )
-    validate.add_argument("file", type=Path, metavar="FILE")
+    validate.add_argument("file", type=Path, metavar="FILE", help="the MJCF scene file")
     validate.add_argument("--robot", default="armar6", help="robot at robot_start")
     validate.set_defaults(func=_validate)
 

@@ -14,7 +14,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     export = actions.add_parser(
         "export", help="write <Message>.json (JSON Schema 2020-12) for every message into DIR"
     )
-    export.add_argument("directory", type=Path, metavar="DIR")
+    export.add_argument(
+        "directory", type=Path, metavar="DIR", help="where the JSON Schemas are written"
+    )
     export.set_defaults(func=_export)
 
 

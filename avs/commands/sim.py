@@ -15,7 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "'avs sim ground-truth' prints a scene's ground truth",
         add_help=False,
     )
-    parser.add_argument("args", nargs=argparse.REMAINDER)
+    parser.add_argument("args", nargs=argparse.REMAINDER, help="its own options (see its --help)")
     parser.set_defaults(func=_sim)
 
 

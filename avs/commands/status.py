@@ -38,6 +38,33 @@ def live_services(session, keys, timeout: float) -> list[tuple[str, str]]:
     return sorted(found)
 
 
+def table(rows: list[dict]) -> str:
+    """The live services as a table whose columns fit their longest entry: uptime in seconds,
+    messages in and out, and the dropped ones as ``reason=n`` (``-``: none; ``?``: the
+    service did not answer the metrics query)."""
+
+    def dropped(r: dict) -> str:
+        if "dropped" not in r:
+            return "?"
+        return ", ".join(f"{k}={n}" for k, n in sorted(r["dropped"].items()) if n) or "-"
+
+    header = ("service", "instance", "uptime_s", "in", "out", "dropped")
+    cells = [header] + [
+        (r["service"], r["instance"], str(r.get("uptime_s", "?")), str(r.get("in", "?")),
+         str(r.get("out", "?")), dropped(r))
+        for r in rows
+    ]  # fmt: skip
+    widths = [max(len(c[i]) for c in cells) for i in range(len(header))]
+    right = (False, False, True, True, True, False)
+    lines = [
+        "  ".join(
+            (c.rjust(w) if r else c.ljust(w)) for c, w, r in zip(row, widths, right, strict=True)
+        ).rstrip()
+        for row in cells
+    ]
+    return "\n".join(lines)
+
+
 def _status(args: argparse.Namespace) -> int:
     from schemas import CodecError, Keys, ServiceMetrics, SupervisorStatus, decode
 
@@ -85,11 +112,7 @@ def _status(args: argparse.Namespace) -> int:
         for row in down:
             print(json.dumps(row | {"down": True}))
     elif rows:
-        print(f"{'service':<14}{'instance':<22}{'uptime':>9}{'in':>10}{'out':>10}  dropped")
-        for r in rows:
-            print(f"{r['service']:<14}{r['instance']:<22}{r.get('uptime_s', '?'):>9}"
-                  f"{r.get('in', '?'):>10}{r.get('out', '?'):>10}  "
-                  f"{r.get('dropped', {})}")  # fmt: skip
+        print(table(rows))
     for d in down:
         print(f"avs status: {d['service']} ({d['instance']}) is down: {d['state']}, "
               f"{d['restarts']} restarts", file=sys.stderr)  # fmt: skip

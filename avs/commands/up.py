@@ -198,6 +198,18 @@ def explore_env(scene: str, robot: str, views: int) -> dict[str, str]:
     return {k: v for k, v in env.items() if k not in os.environ}
 
 
+def data_dir_note(data_dir: Path) -> str:
+    """Where the stateful services keep their state, and what a restart does with it."""
+    memory = data_dir / "scene_memory"
+    held = memory.is_dir() and any(memory.iterdir())
+    return (
+        f"the scene memory keeps its state in {memory.resolve()} "
+        + ("(there is one: it restores it; delete the folder to start empty)" if held
+           else "(empty: it starts empty; a restart restores from it)")
+        + " (--data-dir)"
+    )  # fmt: skip
+
+
 def chosen_services(names: str) -> list[ServiceInfo]:
     if not names:
         return existing()
@@ -232,6 +244,8 @@ def _up(args: argparse.Namespace) -> int:
         supervisor.start()
     except RouterError as e:
         raise SystemExit(f"avs: {e}") from None
+    if any(s.name == "scene_memory" for s in services):
+        log.info(data_dir_note(Path(args.data_dir)))
     try:
         missing = [s.name for s in SERVICES if s not in services]
         if missing:

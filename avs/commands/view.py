@@ -14,9 +14,11 @@ Ctrl-C (or ``--timeout``) stops it after logging what is still waiting and the m
 from __future__ import annotations
 
 import argparse
+import atexit
 import logging
 import os
 import socket
+import subprocess
 import sys
 import threading
 import time
@@ -73,6 +75,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument("--web", action="store_true", help="serve the web viewer; prints its address")
     p.add_argument("--web-port", type=int, default=9090, help="web viewer port (0: any free)")
+    p.add_argument(
+        "--bind", default="127.0.0.1", metavar="ADDR",
+        help="the address --web's viewer and data ports listen on (default 127.0.0.1: this "
+        "machine only; 0.0.0.0 for every interface)",
+    )  # fmt: skip
     p.add_argument("--grpc-port", type=int, default=9876, help="rerun's data port (0: any free)")
     p.add_argument(
         "--save", type=Path, metavar="FILE", help="write the recording to FILE (.rrd); headless"
@@ -270,12 +277,11 @@ def open_recording(args: argparse.Namespace) -> tuple[rr.RecordingStream, list[s
         notes.append(f"recording to {args.save}")
     grpc_port = args.grpc_port or free_port()
     if args.web:
-        server = rr.GrpcServerSink(port=grpc_port)
-        sinks.append(server)
         web_port = args.web_port or free_port()
-        uri = server.uri.replace("0.0.0.0", "localhost")  # it listens on every address
-        rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=uri)
-        notes.append(f"web viewer: http://localhost:{web_port}/?url={quote(uri, safe='')}")
+        uri = serve_web(args.bind, web_port, grpc_port)
+        sinks.append(rr.GrpcSink(uri))
+        host = uri.split("//", 1)[1].split(":", 1)[0]
+        notes.append(f"web viewer: http://{host}:{web_port}/?url={quote(uri, safe='')}")
     if args.spawn or not (args.web or args.save):
         if not has_display():
             raise SystemExit(
@@ -289,6 +295,46 @@ def open_recording(args: argparse.Namespace) -> tuple[rr.RecordingStream, list[s
         notes.append(f"native viewer on port {grpc_port}")
     recording.set_sinks(*sinks)
     return recording, notes
+
+
+def serve_web(bind: str, web_port: int, grpc_port: int, timeout: float = 30.0) -> str:
+    """The rerun CLI as a process (``rerun --serve-web --bind ADDR``): the web viewer's page
+    and a data proxy the recording streams to, both on ``bind`` only (the SDK's own web
+    server listens on every interface, whatever it is told). It ends with this process.
+    Returns the proxy's URI, as a browser on this machine (or, bound to every interface,
+    elsewhere: this host's name) reaches it."""
+    beside = Path(sys.executable).with_name("rerun")
+    command = [str(beside)] if beside.exists() else [sys.executable, "-m", "rerun"]
+    proc = subprocess.Popen(
+        [*command, "--serve-web", "--bind", bind, "--port", str(grpc_port),
+         "--web-viewer-port", str(web_port)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    atexit.register(_end, proc)
+    local = "127.0.0.1" if bind in ("0.0.0.0", "::", "") else bind
+    deadline = time.monotonic() + timeout
+    while True:
+        with socket.socket(socket.AF_INET6 if ":" in local else socket.AF_INET) as s:
+            if s.connect_ex((local, grpc_port)) == 0:
+                break
+        if proc.poll() is not None or time.monotonic() > deadline:
+            _end(proc)
+            raise SystemExit(
+                f"avs view: the rerun web server did not start on {bind}:{grpc_port} "
+                f"(exit status {proc.poll()}): is the port taken? (--grpc-port, --web-port)"
+            )
+        time.sleep(0.1)
+    host = socket.gethostname() if local != bind else ("localhost" if bind == "127.0.0.1" else bind)
+    return f"rerun+http://{host}:{grpc_port}/proxy"
+
+
+def _end(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
 
 
 def _view(args: argparse.Namespace) -> int:
@@ -311,7 +357,8 @@ def _view(args: argparse.Namespace) -> int:
     if dropped:
         print(f"avs view: dropped {dropped} invalid messages", file=sys.stderr)
     print(
-        f"logged {viewer.logged} messages ({viewer.superseded} replaced by newer ones while "
-        "waiting)" + (f" to {args.save}" if args.save else "")
-    )
+        f"logged {viewer.logged} messages" + (f" to {args.save}" if args.save else "")
+        + f"; {viewer.superseded} older ones skipped (the viewer draws the newest message of "
+        "each stream, not every one that came while it drew)"
+    )  # fmt: skip
     return 0
