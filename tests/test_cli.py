@@ -147,6 +147,17 @@ def test_echo_prints_valid_messages_and_counts_invalid_ones(router, client, proc
     assert lines[2]["message"]["angular_velocity"] == imu_sample(2).angular_velocity.tolist()
 
 
+def _publish_until_it_exits(echo, publisher, first: int, at_most: int) -> None:
+    """IMU samples ``first``, ``first`` + 1, … every 50 ms until ``echo`` exits (or
+    ``at_most`` are sent)."""
+    for i in range(first, first + at_most):
+        if echo.poll() is not None:
+            return
+        publisher.put(encode(imu_sample(i)))
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            echo.wait(0.05)
+
+
 def test_echo_count_exits_by_itself(router, client, procs):
     keys = Keys()
     echo = procs.start(
@@ -156,12 +167,7 @@ def test_echo_count_exits_by_itself(router, client, procs):
         text=True,
     )
     publisher = matched_publisher(client, keys.imu(), timeout=30)
-    i = 0
-    while echo.poll() is None and i < 1000:
-        publisher.put(encode(imu_sample(i)))
-        i += 1
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            echo.wait(0.05)
+    _publish_until_it_exits(echo, publisher, first=0, at_most=1000)
     out, _ = echo.communicate(timeout=20)
     assert echo.returncode == 0
     assert len(out.splitlines()) == 2
@@ -182,12 +188,7 @@ def test_echo_stops_quietly_when_its_reader_closes_the_pipe(router, client, proc
     publisher.put(encode(imu_sample(0)))
     assert len(echo.stdout.read(100)) == 100
     echo.stdout.close()  # what head does
-    i = 1
-    while echo.poll() is None and i < 400:
-        publisher.put(encode(imu_sample(i)))
-        i += 1
-        with contextlib.suppress(subprocess.TimeoutExpired):
-            echo.wait(0.05)
+    _publish_until_it_exits(echo, publisher, first=1, at_most=400)
     assert echo.wait(20) == 0
     err = echo.stderr.read().decode()
     assert "Traceback" not in err and "BrokenPipe" not in err and "invalid" not in err, err

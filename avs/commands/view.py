@@ -288,13 +288,17 @@ def open_recording(args: argparse.Namespace) -> tuple[rr.RecordingStream, list[s
                 "avs view: no display (DISPLAY / WAYLAND_DISPLAY unset): use --web to serve "
                 "the web viewer or --save FILE.rrd to record"
             )
-        beside = Path(sys.executable).with_name("rerun")  # the venv's, on PATH or not
-        rr.spawn(port=grpc_port, connect=False,
-                 executable_path=str(beside) if beside.exists() else None)  # fmt: skip
+        rr.spawn(port=grpc_port, connect=False, executable_path=rerun_beside())
         sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{grpc_port}/proxy"))
         notes.append(f"native viewer on port {grpc_port}")
     recording.set_sinks(*sinks)
     return recording, notes
+
+
+def rerun_beside() -> str | None:
+    """The rerun CLI of this Python's environment (the venv's, on PATH or not), if any."""
+    beside = Path(sys.executable).with_name("rerun")
+    return str(beside) if beside.exists() else None
 
 
 def serve_web(bind: str, web_port: int, grpc_port: int, timeout: float = 30.0) -> str:
@@ -303,8 +307,8 @@ def serve_web(bind: str, web_port: int, grpc_port: int, timeout: float = 30.0) -
     server listens on every interface, whatever it is told). It ends with this process.
     Returns the proxy's URI, as a browser on this machine (or, bound to every interface,
     elsewhere: this host's name) reaches it."""
-    beside = Path(sys.executable).with_name("rerun")
-    command = [str(beside)] if beside.exists() else [sys.executable, "-m", "rerun"]
+    beside = rerun_beside()
+    command = [beside] if beside else [sys.executable, "-m", "rerun"]
     proc = subprocess.Popen(
         [*command, "--serve-web", "--bind", bind, "--port", str(grpc_port),
          "--web-viewer-port", str(web_port)],
