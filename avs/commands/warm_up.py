@@ -23,11 +23,9 @@ def _perception() -> None:
 
 
 def _scene_memory() -> None:
-    from services.scene_memory import fusion, occupancy, registration
+    from services.scene_memory import kernels
 
-    occupancy.warm_up()
-    fusion.warm_up()
-    registration.warm_up()
+    kernels.warm_up()
 
 
 def _nbv() -> None:

@@ -19,7 +19,15 @@ class ExplorerSettings(ServiceSettings):
         description="wall: wait on the live streams (nothing steps); lockstep: step sim/control "
         "while the platform and head move, render each view",
     )
-    autostart: bool = Field(False, description="start an episode once the planner answers")
+    autostart: bool = Field(
+        False, description="start an episode once the services it needs are up (``needs``)"
+    )
+    needs: list[str] = Field(
+        ["nbv", "perception", "scene_memory"],
+        description="autostart: the services whose liveliness tokens the episode waits for "
+        "(a frame not fused within capture_timeout_s ends an episode: a scene memory still "
+        "starting would end it at its first view)",
+    )
     views: int = Field(10, ge=1, le=1000, description="views an episode takes at most")
     roi_min: list[float] | None = Field(
         None, description="x,y,z: the scene's region of interest (whose unknown voxels count)"

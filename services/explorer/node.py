@@ -101,8 +101,8 @@ class ExplorerNode:
         self.out_gaze = node.publisher(k.gaze_target())
         self.out_base = node.publisher(k.cmd_base())
         node.serve(k.explore_control(), self.on_control, ExploreControl)
-        if settings.autostart:
-            self.core.start(self.now(), settings.views)
+        # autostart: the episode begins once every service it needs has announced itself
+        self.waiting_for: list[str] | None = list(settings.needs) if settings.autostart else None
         node.start_thread(self.loop, "explorer:loop")
 
     # -- inputs (light: Zenoh's callbacks) -----------------------------------------------------
@@ -244,8 +244,34 @@ class ExplorerNode:
                 sub.undeclare()
             self.watching = []
 
+    def live_services(self) -> set[str]:
+        """The services with a live instance now (their ``alive/<service>/<instance>`` tokens)."""
+        keys = self.node.keys
+        replies = self.node.session.liveliness().get(keys.alive(), timeout=2.0)
+        relative = [keys.relative(str(r.ok.key_expr)) or "" for r in replies if r.ok]
+        return {r.split("/")[1] for r in relative if r.startswith("alive/")}
+
+    def autostart(self) -> bool:
+        """Start the episode once every service in ``needs`` is alive (True: started). Says
+        which ones it waits for, once each time that set changes."""
+        missing = sorted(set(self.waiting_for or ()) - self.live_services())
+        if missing:
+            if missing != self.waiting_for:
+                log.info("the episode starts once %s %s up", ", ".join(missing),
+                         "is" if len(missing) == 1 else "are")  # fmt: skip
+                self.waiting_for = missing
+            return False
+        log.info("%s up: the episode starts", ", ".join(self.s.needs) or "nothing needed")
+        self.waiting_for = None
+        with self.lock:
+            self.core.start(self.now(), self.s.views)
+        return True
+
     def turn(self) -> None:
         """Sense, decide, act, say so; then step (lockstep) or wait a tick."""
+        if self.waiting_for is not None and not self.autostart():
+            self.idle(0.5)
+            return
         phase = self.core.phase
         self.attend(phase in ("plan", "move", "settle", "capture"))
         # while settling (0.3 s at least: the newest frame is known when it ends) and capturing

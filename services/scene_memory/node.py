@@ -35,7 +35,7 @@ from services.common.frames import usable_depth_frame
 from services.common.node import Node
 from services.common.realtime import BACKGROUND, FOREGROUND
 from services.common.standby import wait_for_turn
-from services.scene_memory import cloud_merge, fusion, occupancy
+from services.scene_memory import kernels
 from services.scene_memory.config import SceneMemorySettings
 from services.scene_memory.correction_filter import OdometryNoise, RegistrationNoise
 from services.scene_memory.fusion import FusionConfig
@@ -47,7 +47,7 @@ from services.scene_memory.memory import (
 )
 from services.scene_memory.occupancy import OccupancyConfig
 from services.scene_memory.persistence import Store, snapshot_due
-from services.scene_memory.registration import RegistrationConfig, warm_up
+from services.scene_memory.registration import RegistrationConfig
 
 log = logging.getLogger("avs.scene_memory")
 
@@ -124,11 +124,7 @@ class SceneMemoryNode:
                                 lambda: node.stopping)  # fmt: skip
         if standby is None:
             raise SystemExit(0)  # stopped while standing by
-        occupancy.warm_up()  # the kernels before the first frame, not with it
-        fusion.warm_up()
-        cloud_merge.warm_up()
-        if settings.registration:
-            warm_up()
+        kernels.warm_up(settings.registration)  # before the first frame, not with it
         self.store = Store(settings.data_dir)
         self.replay_s = 0.0  # time the updates since the last snapshot took to apply
         self.snapshot_s = 0.0  # time the last snapshot took to write
