@@ -25,11 +25,12 @@ KEYS = Keys()
 IMAGES = ("avs:latest", "avs-router:latest")
 #: what the test run changes in compose.host.yaml: frames at a rate two perception containers
 #: keep up with on two cores shared with the rest, a queue deep enough that none is superseded
-#: (each frame processed by its owner: countable), no real-time priorities (a benchmark may share
-#: the machine), a 2 cm map
+#: and no pacing (``max_rate`` replaces a waiting frame by a newer one: with it, a survivor that
+#: falls behind loses frames it owns), so each frame is processed by its owner: countable; no
+#: real-time priorities (a benchmark may share the machine), a 2 cm map
 TUNING = {
     "sim": {"AVS_SIM_FPS": "4", "AVS_SIM_REALTIME": "false"},
-    "perception": {"AVS_PERCEPTION_QUEUE": "16"},
+    "perception": {"AVS_PERCEPTION_QUEUE": "16", "AVS_PERCEPTION_MAX_RATE": "0"},
     "gaze": {"AVS_GAZE_REALTIME": "false"},
     "scene_memory": {"AVS_SCENE_MEMORY_VOXEL": "0.02"},
 }
@@ -109,11 +110,20 @@ class Stack:
             labels.append(f"com.docker.compose.service={service}")
         return self.docker.containers.list(all=all, filters={"label": labels})
 
-    def session(self, user: str) -> zenoh.Session:
+    def session(self, user: str, wait_s: float = 60.0) -> zenoh.Session:
+        """A client session as ``user``; the router container may still be starting (a test
+        run alone right after ``compose up -d``): tried again for up to ``wait_s``."""
         config = session_config("client", connect=[f"tcp/127.0.0.1:{self.port}"])
         config.insert_json5("transport/auth/usrpwd/user", json.dumps(user))
         config.insert_json5("transport/auth/usrpwd/password", json.dumps(self.passwords[user]))
-        return zenoh.open(config)
+        deadline = time.monotonic() + wait_s
+        while True:
+            try:
+                return zenoh.open(config)
+            except zenoh.ZError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(1.0)
 
 
 def watch(session: zenoh.Session) -> tuple[Seen, list]:
