@@ -1,7 +1,8 @@
-"""scripts/figures (benchmarks/figures.py): the README's figure blocks parse and name their
-commands, a block is rewritten in place and nothing else is, unknown blocks fail, every measured
-table of the README is inside a block, and each renderer turns a run's output (canned here from
-real runs: the numbers are checked) into its block. No figure is measured here."""
+"""scripts/figures (benchmarks/figures.py): the figure blocks of the README and ``docs/`` parse
+and name their commands, a block is rewritten in place in its own document and nothing else is,
+unknown blocks fail, every measured table of the documents is inside a block, and each renderer
+turns a run's output (canned here from real runs: the numbers are checked) into its block. No
+figure is measured here."""
 
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ from benchmarks.figures import (
     RenderError,
     block_content,
     check_blocks,
+    documents,
+    find_blocks,
     loose_tables,
     parse_blocks,
     parse_provenance,
@@ -55,8 +58,10 @@ def block(name: str, body: str, command: str | None = None) -> str:
 # -- blocks -------------------------------------------------------------------------------------
 
 
-def test_the_readmes_blocks_parse_and_name_their_figures_commands():
-    blocks_name_their_commands((ROOT / "README.md").read_text())
+def test_the_documents_blocks_parse_and_name_their_figures_commands():
+    names = [n for d in documents(ROOT) for n in blocks_name_their_commands(d.read_text())]
+    assert sorted(names) == sorted(REGISTRY)  # each figure has one block, in one document
+    assert set(find_blocks(documents(ROOT), REGISTRY)) == set(REGISTRY)
 
 
 def test_a_block_for_every_figure_names_its_command_and_a_wrong_command_fails():
@@ -154,10 +159,27 @@ def test_unknown_broken_and_doubled_blocks_fail(tmp_path, capsys):
     assert not (tmp_path / "out").exists() and readme.read_text() == unknown
 
 
-def test_every_measured_table_of_the_readme_is_in_a_figure_block():
-    loose = loose_tables((ROOT / "README.md").read_text())
-    assert not loose, "measured tables outside figure blocks (line, header):\n" + "\n".join(
-        f"  {n}: {h}" for n, h in loose
+def test_blocks_in_two_documents_each_rewritten_in_its_own_and_a_figure_in_both_fails(tmp_path):
+    readme, doc = tmp_path / "README.md", tmp_path / "docs" / "benchmarks.md"
+    doc.parent.mkdir()
+    readme.write_text("# AVS\n\n" + block("codec", "`a=1`") + "\n")
+    doc.write_text("# Benchmarks\n\n" + block("soak", "`b=2`") + "\n")
+    assert documents(tmp_path) == [readme, doc]
+    where = find_blocks(documents(tmp_path), REGISTRY)
+    assert where == {"codec": readme, "soak": doc}
+    ok = Figure("soak", "python -c \"print('a=7 b=8')\"", 1, figures.render_summary)
+    assert figures.run([ok], where, tmp_path / "out") == 0
+    (soak,) = parse_blocks(doc.read_text())
+    assert soak.body[2] == "`a=7 b=8`" and "`a=1`" in readme.read_text()
+    doc.write_text(doc.read_text() + "\n" + block("codec", "`a=3`") + "\n")
+    with pytest.raises(FigureError, match=r"codec.*README\.md and .*benchmarks\.md"):
+        find_blocks(documents(tmp_path), REGISTRY)
+
+
+def test_every_measured_table_of_the_documents_is_in_a_figure_block():
+    loose = [(d.name, n, h) for d in documents(ROOT) for n, h in loose_tables(d.read_text())]
+    assert not loose, "measured tables outside figure blocks (file, line, header):\n" + "\n".join(
+        f"  {d}:{n}: {h}" for d, n, h in loose
     )
 
 
@@ -206,7 +228,7 @@ def test_a_failing_figure_leaves_its_block_and_the_others_still_run(tmp_path, mo
     readme = tmp_path / "README.md"
     readme.write_text(README_TEXT)
     out = tmp_path / "out"
-    assert figures.run([bad, ok], readme, {"codec", "soak"}, out) == 1
+    assert figures.run([bad, ok], {"codec": readme, "soak": readme}, out) == 1
     text = readme.read_text()
     (codec, soak), (_, old_soak) = parse_blocks(text), parse_blocks(README_TEXT)
     assert soak == old_soak

@@ -15,12 +15,35 @@ from tests.conftest import ROOT, session_config
 from tests.streams import rgbd_frame
 
 README = (ROOT / "README.md").read_text()
+ARCHITECTURE = (ROOT / "docs" / "architecture.md").read_text()  # the outside subscriber's example
 
 
 def _quick_start_commands() -> list[str]:
     section = README.split("## Quick start", 1)[1].split("\n## ", 1)[0]
     block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
     return [line.split("#", 1)[0].strip() for line in block.splitlines() if line.strip()]
+
+
+def test_the_readme_is_short_and_opens_with_what_avs_is_and_the_quick_start():
+    lines = README.split("\n")
+    assert len(lines) <= 300, len(lines)
+    headers = [line for line in lines if line.startswith("## ")]
+    assert headers[0] == "## Quick start", headers
+    assert "AVS lets a humanoid robot" in README.split("## Quick start")[0]
+    assert "runs/explore/report.html" in README  # where the results go
+
+
+def test_every_relative_link_of_the_readme_and_the_docs_names_a_file_that_exists():
+    docs = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+    assert len(docs) >= 6
+    broken = []
+    for doc in docs:
+        for target in re.findall(r"\]\(([^)\s]+)\)", doc.read_text()):
+            if re.match(r"(https?:|#|mailto:)", target):
+                continue
+            if not (doc.parent / target.split("#", 1)[0]).exists():
+                broken.append(f"{doc.relative_to(ROOT)}: {target}")
+    assert not broken, broken
 
 
 def test_quick_start_has_exactly_two_commands_that_exist():
@@ -42,7 +65,7 @@ def test_ci_runs_the_readme_test_command_and_nothing_else():
 
 
 def _example() -> str:
-    after = README.split("<!-- example: external-subscriber -->", 1)[1]
+    after = ARCHITECTURE.split("<!-- example: external-subscriber -->", 1)[1]
     return re.search(r"```python\n(.*?)```", after, re.S).group(1)
 
 

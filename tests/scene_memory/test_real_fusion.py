@@ -16,7 +16,8 @@ from services.scene_memory.fusion import Fusion, FusionConfig
 from tests.real import REAL, needs_real
 
 #: the table top above the floor, m: the median height of the points within 2 cm of the
-#: second level plane ``level_frame`` finds (README "Real recordings": how it was measured)
+#: second level plane ``level_frame`` finds (docs/real-data.md "On real recordings": how it was
+#: measured)
 KITCHEN_TABLE = 0.719
 
 
@@ -60,7 +61,7 @@ def test_the_kitchen_table_top_is_one_level_plane_at_its_height():
 
 
 #: the two mugs on the kitchen table (world x, y after ``level_frame``, m): the white one at
-#: the near end, the flowered one at the far end (README "On real recordings": how found)
+#: the near end, the flowered one at the far end (docs/real-data.md "On real recordings": how found)
 MUGS = ((-0.71, 1.77), (0.27, 1.66))
 
 
