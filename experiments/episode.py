@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import shutil
 import signal
 import socket
@@ -33,7 +34,8 @@ import zenoh
 
 from avs.launcher import Supervisor
 from avs.services import BY_NAME
-from experiments import evaluation
+from experiments import evaluation, scene_figures
+from experiments.scene_figures import thumbnail
 from schemas import (
     BasePose,
     BoxQuery,
@@ -119,6 +121,7 @@ class ViewRecord:
     pose_error_deg: float = 0.0
     registration_ms: float = 0.0
     registration: str = ""  # "accepted", or why the frame kept its prior; "" when off
+    rgb: str = ""  # the view's colour image, a JPEG thumbnail in the episode's directory
     #: T_world_camera (4×4, rows) the map used, and the true one the truth is scored with
     camera_pose_used: list[list[float]] = field(default_factory=list)
     camera_pose_true: list[list[float]] = field(default_factory=list)
@@ -136,8 +139,18 @@ class EpisodeResult:
     termination_detail: str = ""  # why, in words (no_candidates)
     abandoned_goals: int = 0  # goals the platform did not reach in time, all episode long
     final_support_edges: list[list[str]] = field(default_factory=list)
-    #: the fused model's primitives: id, kind, the body each maps to, OBB centre and extent
+    #: the fused model's primitives: id, kind, the body each maps to, OBB centre and extent,
+    #: rotation, colour, the solid (``scene_figures.solid``), stable / unstable / unresolved
     final_primitives: list[dict] = field(default_factory=list)
+    #: the fused support edges by primitive: supporter, supported, occ(e), their bodies and the
+    #: verdict against the truth ("true", "false_positive", "not_judged": outside the roi)
+    final_support: list[dict] = field(default_factory=list)
+    final_missed: list[list[str]] = field(default_factory=list)  # true edges not perceived
+    robot: str = ""
+    noise: bool = True
+    registration: bool = True
+    camera_hfov_deg: float = 0.0  # the head camera's horizontal field of view (the map's wedges)
+    recording: str = ""  # the rerun recording of the episode (``--save-view``), if any
     roi: list[list[float]] = field(default_factory=list)
     centre: list[float] = field(default_factory=list)
     #: the final map's obstacles seen from above (occupied voxels 5 cm-2 m): a PNG in the
@@ -387,6 +400,7 @@ class Episode:
             c.scene, c.strategy, c.sampling, c.fusion, c.seed,
             roi=[list(map(float, roi_lo)), list(map(float, roi_hi))],
             centre=list(map(float, facts.centre)),
+            robot=c.robot, noise=c.noise, registration=c.registration,
         )  # fmt: skip
         self.supervisor = supervisor
         supervisor.start()
@@ -480,8 +494,11 @@ class Episode:
                     scores.vertex_precision, scores.segments_per_body, scores.bodies_merged,
                     pose_error[0], pose_error[1], registration_ms, registration,
                     np.round(T_used, 6).tolist(), np.round(T_true, 6).tolist(),
+                    thumbnail(frame.rgb, c.out / "views" / f"view_{s.view}.jpg", c.out),
                 )  # fmt: skip
                 result.views.append(record)
+                K = frame.intrinsics
+                result.camera_hfov_deg = round(math.degrees(2 * math.atan2(K.width, 2 * K.fx)), 2)
                 self._check_gain(result.views)
                 edges = [(e.supporter, e.supported) for e in scene.support_edges]
                 result.final_support_edges = [
@@ -491,9 +508,15 @@ class Episode:
                     {"id": p.id, "kind": p.model.kind, "body": scores.bodies.get(p.id, ""),
                      "center": [round(float(x), 3) for x in p.obb.center],
                      "extent": [round(float(x), 3) for x in p.obb.extent],
-                     "inliers": p.inlier_count}
+                     "inliers": p.inlier_count, **scene_figures.solid(p),
+                     "state": "unstable" if p.id in scene.unstable_ids else "unresolved"
+                     if p.id in scene.unresolved_ids else "stable"}
                     for p in scene.primitives
                 ]  # fmt: skip
+                result.final_support = scene_figures.support_verdicts(
+                    scene.support_edges, scores.bodies, support
+                )
+                result.final_missed = [list(e) for e in support.missed]
                 scored, abandoned = s.view, s.abandoned
                 if self.progress:
                     self.progress(s.view, c.views, record)

@@ -188,6 +188,7 @@ class SupportScores:
     edges: list[tuple[str, str]]  # every judged perceived edge, unmapped ends as '#<id>'
     vertices: list[str]
     false_positives: list[tuple[str, str]] = field(default_factory=list)
+    missed: list[tuple[str, str]] = field(default_factory=list)  # true edges not perceived
 
 
 def edge_names(edges: list[tuple[int, int]], bodies: dict[int, str]) -> list[tuple[str, str]]:
@@ -225,7 +226,8 @@ def score_support(
         recall = tp / len(e_gt) if e_gt else 0.0
     f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
     vertices = sorted({b for b in bodies.values() if b in scope})
-    return SupportScores(precision, recall, f1, sorted(judged), vertices, sorted(judged - e_gt))
+    return SupportScores(precision, recall, f1, sorted(judged), vertices, sorted(judged - e_gt),
+                         sorted(e_gt - judged))  # fmt: skip
 
 
 def label_by_boxes(

@@ -16,6 +16,31 @@ SERIES = {
     "unknown_voxels": ("unknown_voxels", "unknown voxels in the roi"),
     "path_cost": ("accumulated_path_cost", "accumulated path cost c(v), s (Eq. 4.9)"),
 }
+#: what each plot's axes show, under it in the report (by the image's name)
+CAPTIONS = {
+    "f1": "Support-graph F1 (Eq. 4.14-4.16) of the fused model against the scene's truth after "
+    "each view (x: views in the order taken, numbered as in the table; y: 0 to 1). Several "
+    "seeds: the line is their median, the band their range.",
+    "unknown_voxels": "Voxels of the region of interest still unknown after each view (the "
+    "map's unknown cells inside the roi; fewer is better).",
+    "path_cost": "Accumulated path cost c(v) (Eq. 4.9): the time, in seconds, the platform and "
+    "the head took to reach the views so far.",
+    "information_gain": "Information gain per view (Eq. 4.6, in voxels of the volume measure, "
+    "rays for the ray measure): what the planner predicted beside what the view then realised "
+    "by the same measure. Log scale: the first view starts from nothing known and realises "
+    "every voxel it sees, in and around the roi, orders of magnitude more than the later ones.",
+    "views_map": "The final map from above (dark: occupied between 5 cm and 2 m, light grey: "
+    "seen; x and y in metres), the roi dashed, the platform poses numbered in the order taken, "
+    "each with the head camera's horizontal field of view.",
+    "fused_scene": "The fused model at the end: each primitive as a solid in its colour "
+    "(planes and boxes as their oriented boxes, cylinders and spheres as fitted), labelled "
+    "with the body of the scene it matched ('#id': none), from a fixed viewpoint on the roi "
+    "(dashed).",
+    "support_graph": "The fused support graph (thesis 3.2.2, 3.3.1): an arrow from supporter "
+    "to supported with occ(e), the views it was seen in; green: the truth has it, red: a false "
+    "positive, grey: outside the roi (not judged), dashed: an edge of the truth not found. "
+    "Amber nodes: no support found and nothing seen under them yet (unresolved); red: unstable.",
+}
 
 
 def _plt():
@@ -55,6 +80,8 @@ def series_plots(runs: dict[str, list[dict]], out: Path) -> list[Path]:
                 ax.fill_between(x, np.nanmin(values, 0), np.nanmax(values, 0), alpha=0.2)
         ax.set_xlabel("view")
         ax.set_title(title)
+        if key == "support_f1":
+            ax.set_ylim(-0.02, 1.05)
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.legend()
         paths.append(_save(fig, out / f"{name}.png"))
@@ -141,7 +168,10 @@ def gain_plot(runs: dict[str, list[dict]], out: Path) -> Path:
         ax.plot(x, [r.get("realised_gain", 0.0) for r in e["views"]], "s--",
                 color=line.get_color(), label=f"{label}: realised")  # fmt: skip
     ax.set_xlabel("view")
-    ax.set_title("information gain per view (first seed)")
+    ax.set_ylabel("voxels")
+    ax.set_yscale("symlog", linthresh=100)
+    several = any(len(episodes) > 1 for episodes in runs.values())
+    ax.set_title("information gain per view" + (" (each strategy's first seed)" if several else ""))
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.legend(fontsize=8)
     return _save(fig, out / "information_gain.png")
@@ -175,6 +205,20 @@ def map_plot(episodes: dict[str, dict], out: Path) -> Path:
         for i, (x, y, yaw) in enumerate(b):
             ax.annotate(str(i + 1), (x, y), textcoords="offset points", xytext=(4, 4))
             ax.arrow(x, y, 0.2 * np.cos(yaw), 0.2 * np.sin(yaw), width=0.01, color=line.get_color())
+        hfov = np.radians(e.get("camera_hfov_deg") or 0.0)
+        for r in e["views"]:
+            T = np.asarray(r.get("camera_pose_used") or np.zeros((0, 0)))
+            if hfov <= 0 or T.shape != (4, 4):
+                continue
+            eye, forward = T[:2, 3], T[:2, 2]  # the optical axis (z), seen from above
+            if np.linalg.norm(forward) < 1e-6:
+                continue
+            heading = np.arctan2(forward[1], forward[0])
+            reach = 0.3 + np.linalg.norm(np.asarray(first["centre"][:2]) - eye)
+            sides = [eye + reach * np.array([np.cos(heading + s), np.sin(heading + s)])
+                     for s in (-hfov / 2, hfov / 2)]  # fmt: skip
+            wedge = np.array([sides[0], eye, sides[1]])
+            ax.plot(wedge[:, 0], wedge[:, 1], "-", lw=0.7, color=line.get_color(), alpha=0.6)
     ax.set_aspect("equal")
     ax.set_xlabel("x, m")
     ax.set_ylabel("y, m")
@@ -183,32 +227,140 @@ def map_plot(episodes: dict[str, dict], out: Path) -> Path:
     return _save(fig, out / "views_map.png")
 
 
-def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Path) -> Path:
-    """report.html with the images inlined (base64), one summary table per episode."""
-    parts = [f"<!doctype html><meta charset=utf-8><title>{html.escape(title)}</title>",
-             "<style>body{font-family:sans-serif;max-width:1000px;margin:2em auto}"
-             "img{max-width:100%}td,th{padding:2px 8px;text-align:right}</style>",
-             f"<h1>{html.escape(title)}</h1>"]  # fmt: skip
-    for img in images:
-        data = base64.b64encode(img.read_bytes()).decode()
-        parts.append(f'<p><img alt="{img.stem}" src="data:image/png;base64,{data}"></p>')
-    cols = ["view", "support_precision", "support_recall", "support_f1", "vertex_precision",
-            "bodies_merged", "unknown_voxels", "information_gain", "realised_gain", "path_cost",
-            "accumulated_path_cost", "inlier_index", "overlapping_index", "planning_s"]  # fmt: skip
-    for label, e in tables.items():
-        parts.append(f"<h2>{html.escape(label)}</h2><p>terminated by {e['terminated_by']}</p>")
-        parts.append("<table><tr>" + "".join(f"<th>{c}</th>" for c in cols) + "</tr>")
-        for r in e["views"]:
-            cells = "".join(
-                f"<td>{r.get(c, 0):.3f}</td>"
-                if isinstance(r.get(c, 0), float)
-                else f"<td>{r.get(c, '')}</td>"
-                for c in cols
+def _img(path: Path, alt: str, cls: str = "") -> str:
+    """An <img> with the file inlined (the report is one self-contained file)."""
+    mime = "image/jpeg" if path.suffix.lower() in (".jpg", ".jpeg") else "image/png"
+    data = base64.b64encode(path.read_bytes()).decode()
+    c = f' class="{cls}"' if cls else ""
+    return f'<img{c} alt="{html.escape(alt)}" src="data:{mime};base64,{data}">'
+
+
+def _figure(path: Path, caption: str | None = None) -> str:
+    text = caption if caption is not None else CAPTIONS.get(path.stem.rsplit("_", 1)[0]
+                                                            if path.stem[-1].isdigit()
+                                                            else path.stem, "")  # fmt: skip
+    return (
+        f"<figure>{_img(path, path.stem)}"
+        + (f"<figcaption>{html.escape(text)}</figcaption>" if text else "")
+        + "</figure>"
+    )
+
+
+def summary_rows(e: dict) -> list[tuple[str, str]]:
+    """The figures a reader wants first: how the episode ran, why it stopped, where it ended."""
+    last = e["views"][-1] if e["views"] else {}
+    why = e.get("terminated_by", "") + (f": {e['termination_detail']}"
+                                        if e.get("termination_detail") else "")  # fmt: skip
+    rows = [
+        ("scene", e.get("scene", "")), ("robot", e.get("robot", "")),
+        ("strategy", f"{e.get('strategy', '')}, {e.get('sampling', '')} sampling, seed "
+                     f"{e.get('seed', '')}"),
+        ("fusion", e.get("fusion", "")),
+        ("sensor models", "on (noise, drift)" if e.get("noise", True) else "off (the truth)"),
+        ("view registration", "on" if e.get("registration", True) else "off"),
+        ("views", str(len(e["views"]))), ("stopped by", why),
+    ]  # fmt: skip
+    if last:
+        rows += [
+            ("support F1 (precision, recall)", f"{last['support_f1']:.2f} "
+             f"({last['support_precision']:.2f}, {last['support_recall']:.2f})"),
+            ("unknown voxels in the roi", f"{last['unknown_voxels']:,}"),
+            ("path cost", f"{last['accumulated_path_cost']:.1f} s"),
+            ("InlierIndex", f"{last['inlier_index']:.2f}"),
+            ("camera pose error (last view)", f"{1e3 * last.get('pose_error_m', 0.0):.1f} mm, "
+             f"{last.get('pose_error_deg', 0.0):.2f}°"),
+        ]  # fmt: skip
+    if e.get("recording"):
+        rows.append(
+            (
+                "recording",
+                f"rerun {e['recording']}  (the viewer AVS installs in .venv/bin; "
+                "every stream of the episode)",
             )
-            parts.append(f"<tr>{cells}</tr>")
+        )
+    return rows
+
+
+#: the views table: header, unit, and how a view's record makes the cell
+VIEW_COLUMNS = (
+    ("view", "", lambda r: str(r["view"] + 1)),
+    ("support F1", "(P / R)", lambda r: f"{r['support_f1']:.2f} "
+     f"({r['support_precision']:.2f} / {r['support_recall']:.2f})"),
+    ("unknown", "voxels", lambda r: f"{r['unknown_voxels']:,}"),
+    ("gain predicted", "voxels", lambda r: f"{r['information_gain']:,.0f}"),
+    ("gain realised", "voxels", lambda r: f"{r.get('realised_gain', 0.0):,.0f}"),
+    ("path cost", "s (total)",
+     lambda r: f"{r['path_cost']:.1f} ({r['accumulated_path_cost']:.1f})"),
+    ("pose error", "mm / °", lambda r: f"{1e3 * r.get('pose_error_m', 0.0):.1f} / "
+     f"{r.get('pose_error_deg', 0.0):.2f}"),
+    ("registration", "", lambda r: r.get("registration", "") or "off"),
+    ("planning", "s", lambda r: f"{r['planning_s']:.1f}"),
+)  # fmt: skip
+
+STYLE = (
+    "body{font-family:system-ui,sans-serif;max-width:1180px;margin:1.5em auto;padding:0 1em;"
+    "color:#222}img{max-width:100%;height:auto}figure{margin:1em 0}"
+    "figcaption{font-size:0.85em;color:#555;max-width:760px}"
+    "table{border-collapse:collapse;font-size:0.85em}td,th{padding:3px 8px;"
+    "border-bottom:1px solid #ddd;vertical-align:middle}th{text-align:left;background:#f3f3f3}"
+    "td.n{text-align:right;white-space:nowrap}table.summary td:first-child{color:#555}"
+    ".pair{display:flex;flex-wrap:wrap;gap:1em}.pair figure{flex:1 1 520px;min-width:0}"
+    "img.thumb{width:160px;display:block}code{background:#f3f3f3;padding:1px 4px}"
+)
+
+
+def episode_figures(e: dict, out: Path, tag: str) -> list[Path | str]:
+    """The fused-scene rendering and the support graph of episode ``e`` (files ``NAME{tag}``
+    in ``out``); where one cannot be drawn, why (a string) in its place."""
+    from experiments import scene_figures
+
+    made: list[Path | str] = []
+    prims = e.get("final_primitives") or []
+    for name, draw in (
+        ("fused_scene", lambda: scene_figures.scene_image(prims, e["roi"], out)),
+        ("support_graph", lambda: scene_figures.support_graph_image(
+            prims, e.get("final_support") or [], e.get("final_missed") or [], out)),
+    ):  # fmt: skip
+        try:
+            path = draw()
+            made.append(path.rename(out / f"{name}{tag}.png"))
+        except Exception as err:  # the report goes on without it, and says why
+            made.append(f"{name}: not drawn ({type(err).__name__}: {err})")
+    return made
+
+
+def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Path) -> Path:
+    """report.html, one self-contained file (images inlined): per episode a summary (the
+    set-up, why it stopped, the final figures), the fused scene rendered and its support graph
+    drawn, the views with their colour images; then the plots, each with its caption."""
+    parts = [f"<!doctype html><meta charset=utf-8><title>{html.escape(title)}</title>",
+             '<meta name="viewport" content="width=device-width, initial-scale=1">',
+             f"<style>{STYLE}</style>", f"<h1>{html.escape(title)}</h1>"]  # fmt: skip
+    for i, (label, e) in enumerate(tables.items()):
+        parts.append(f"<h2>{html.escape(label)}</h2><table class=summary>")
+        parts += [f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>"
+                  for k, v in summary_rows(e)]  # fmt: skip
         parts.append("</table>")
-    edges = {k: v["final_support_edges"] for k, v in tables.items()}
-    parts.append(f"<h2>final support edges</h2><pre>{html.escape(json.dumps(edges))}</pre>")
+        if e.get("final_primitives") or e.get("final_support") or e.get("final_missed"):
+            figures = episode_figures(e, out, "" if len(tables) == 1 else f"_{i}")
+            parts.append('<div class="pair">')
+            for f in figures:
+                parts.append(_figure(f) if isinstance(f, Path) else f"<p>{html.escape(f)}</p>")
+            parts.append("</div>")
+        head = "".join(f"<th>{html.escape(h)}<br><small>{html.escape(u)}</small></th>"
+                       for h, u, _ in VIEW_COLUMNS)  # fmt: skip
+        parts.append(f"<h3>views</h3><table><tr>{head}<th>colour image</th></tr>")
+        for r in e["views"]:
+            cells = "".join(f'<td class="n">{html.escape(cell(r))}</td>'
+                            for _, _, cell in VIEW_COLUMNS)  # fmt: skip
+            thumb = out / r["rgb"] if r.get("rgb") else None
+            shown = thumb is not None and thumb.is_file()
+            image = _img(thumb, f"view {r['view'] + 1}", "thumb") if shown else ""
+            parts.append(f"<tr>{cells}<td>{image}</td></tr>")
+        parts.append("</table>")
+    parts.append('<h2>plots</h2><div class="pair">')
+    parts += [_figure(img) for img in images]
+    parts.append("</div>")
     path = out / "report.html"
     path.write_text("\n".join(parts))
     return path

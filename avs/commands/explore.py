@@ -214,6 +214,7 @@ def _explore(args: argparse.Namespace) -> int:
         config = _config(args, strategy=args.strategy, seed=args.seed,
                          viewer=viewer_flags(args.viewer, args.save_view))  # fmt: skip
         result = episode(config, args.strategy, args.verbose)
+        result["recording"] = str(args.save_view) if args.save_view else ""
     except SceneError as e:
         print(f"avs explore: {e}", file=sys.stderr)
         return 2

@@ -12,6 +12,7 @@ from itertools import pairwise
 import numpy as np
 import pytest
 
+from tests.browser import layout
 from tests.conftest import ROOT
 
 AVS = [sys.executable, "-m", "avs.cli"]
@@ -50,8 +51,20 @@ def test_tabletop_occluded_support_graph_complete_by_view_5_and_ends_by_itself(t
     # map uses to 17.6 mm and 0.79° there (seed 0; 5.0, 3.6 and 3.8 mm with seeds 1-3)
     assert all(v["registration"] == "accepted" for v in views), views
     assert views[-1]["pose_error_m"] < 0.03 and views[-1]["pose_error_deg"] < 1.0, views[-1]
+    # the report as a browser shows it: every view's colour image, the fused scene rendered, the
+    # support graph drawn, the summary; nothing broken, nothing wider than a 1280 px window
     page = (tmp_path / "report.html").read_text()
-    assert page.count("<img") == 5 and "data:image/png;base64," in page  # + the gain plot
+    assert "stopped by" in page and "support F1 (precision, recall)" in page
+    assert f"<td>{views[-1]['support_f1']:.2f} (" in page
+    shown = layout(tmp_path / "report.html", tmp_path)
+    assert shown["broken"] == [] and shown["width"] <= 1280, shown
+    alts = shown["alts"]
+    numbered = [f"view {i + 1}" for i in range(len(views))]  # as the plots number them
+    assert [a for a in alts if a.startswith("view ")] == numbered
+    assert {"fused_scene", "support_graph", "f1", "views_map", "information_gain"} <= set(alts)
+    graph = m["final_support"]
+    assert {e["verdict"] for e in graph} <= {"true", "false_positive", "not_judged"}
+    assert sum(e["verdict"] == "true" for e in graph) >= 2
 
 
 def test_the_kitchen_explores_from_a_start_boxed_in_by_unseen_floor(tmp_path):
