@@ -121,10 +121,10 @@ class ViewRecord:
     pose_error_deg: float = 0.0
     registration_ms: float = 0.0
     registration: str = ""  # "accepted", or why the frame kept its prior; "" when off
-    rgb: str = ""  # the view's colour image, a JPEG thumbnail in the episode's directory
     #: T_world_camera (4×4, rows) the map used, and the true one the truth is scored with
     camera_pose_used: list[list[float]] = field(default_factory=list)
     camera_pose_true: list[list[float]] = field(default_factory=list)
+    rgb: str = ""  # the view's colour image, a JPEG thumbnail in the episode's directory
 
 
 @dataclass

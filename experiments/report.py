@@ -32,10 +32,10 @@ CAPTIONS = {
     "views_map": "The final map from above (dark: occupied between 5 cm and 2 m, light grey: "
     "seen; x and y in metres), the roi dashed, the platform poses numbered in the order taken, "
     "each with the head camera's horizontal field of view.",
-    "fused_scene": "The fused model at the end: each primitive as a solid in its colour "
-    "(planes and boxes as their oriented boxes, cylinders and spheres as fitted), labelled "
-    "with the body of the scene it matched ('#id': none), from a fixed viewpoint on the roi "
-    "(dashed).",
+    "fused_scene": "The fused model at the end, what meets the roi (dashed): each primitive "
+    "as a solid in its colour (planes and boxes as their oriented boxes, cylinders and spheres "
+    "as fitted), each body of the scene labelled once at its largest primitive ('#id': a "
+    "primitive that matched no body), from a fixed viewpoint.",
     "support_graph": "The fused support graph (thesis 3.2.2, 3.3.1): an arrow from supporter "
     "to supported with occ(e), the views it was seen in; green: the truth has it, red: a false "
     "positive, grey: outside the roi (not judged), dashed: an edge of the truth not found. "

@@ -156,15 +156,42 @@ def project(points: np.ndarray, view, size: tuple[int, int], fovy: float) -> np.
     return np.stack([size[0] / 2 + f * (d @ right) / z, size[1] / 2 - f * (d @ up) / z], 1)
 
 
+def in_roi(primitives: list[dict], roi: list[list[float]], margin: float = 0.1) -> list[dict]:
+    """The primitives whose oriented box meets the roi grown by ``margin`` (the floor and the
+    room around it left out: they would fill the picture)."""
+    lo, hi = np.asarray(roi[0], float) - margin, np.asarray(roi[1], float) + margin
+    kept = []
+    for p in primitives:
+        R = np.asarray(p.get("rotation") or np.eye(3), float)
+        reach = np.abs(R) @ (np.asarray(p["extent"], float) / 2)  # world-axis half extents
+        c = np.asarray(p["center"], float)
+        if np.all(c + reach >= lo) and np.all(c - reach <= hi):
+            kept.append(p)
+    return kept
+
+
+def labels(primitives: list[dict]) -> list[dict]:
+    """The primitives to label: each body once, at its primitive with the most inliers (a
+    table's top, not each leg), and every primitive that matched no body."""
+    best: dict[str, dict] = {}
+    for p in primitives:
+        body = p.get("body")
+        if body and (body not in best or p.get("inliers", 0) > best[body].get("inliers", 0)):
+            best[body] = p
+    return [p for p in primitives if not p.get("body") or best.get(p["body"]) is p]
+
+
 def scene_image(primitives: list[dict], roi: list[list[float]], out: Path,
                 size: tuple[int, int] = (960, 640)) -> Path:  # fmt: skip
-    """``fused_scene.png``: the fused primitives as solids from a fixed viewpoint on the roi,
-    each labelled with the body it matched ('#id' where none), the roi's box drawn."""
+    """``fused_scene.png``: the fused primitives that meet the roi as solids from a fixed
+    viewpoint on it, each body labelled once ('#id': a primitive of no body), the roi's box
+    drawn."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     import mujoco
 
     from experiments.report import _plt, _save
 
+    primitives = in_roi(primitives, roi)
     model = mujoco.MjModel.from_xml_string(scene_xml(primitives))
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
@@ -188,7 +215,7 @@ def scene_image(primitives: list[dict], roi: list[list[float]], out: Path,
         for j in range(i + 1, 8):
             if np.count_nonzero(corners[i] != corners[j]) == 1:
                 ax.plot(uv[[i, j], 0], uv[[i, j], 1], "--", color="0.4", lw=0.8)
-    labelled = [p for p in primitives if p["kind"] != "plane" or p.get("body")]
+    labelled = labels(primitives)
     if labelled:
         at = project(np.array([p["center"] for p in labelled]), view, size, fovy)
         for p, (u, v) in zip(labelled, at, strict=True):

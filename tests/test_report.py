@@ -175,3 +175,17 @@ def test_the_information_gain_plot_names_its_unit_and_its_seed_only_when_there_a
     assert seen == {"title": "information gain per view", "ylabel": "voxels", "scale": "symlog"}
     report.gain_plot({"utility": [e, e]}, tmp_path)
     assert seen["title"].endswith("(each strategy's first seed)")
+
+
+def test_the_picture_keeps_what_meets_the_roi_and_labels_each_body_once():
+    prims = primitives()
+    floor = {"id": 9, "kind": "plane", "body": "floor", "center": [0.0, 0.0, 0.0],
+             "extent": [6.0, 6.0, 0.01], "rotation": np.eye(3).tolist()}  # fmt: skip
+    leg = {"id": 10, "kind": "cylinder", "body": "table", "center": [1.0, 0.5, 0.4],
+           "extent": [0.04, 0.04, 0.7], "rotation": np.eye(3).tolist(), "inliers": 50}  # fmt: skip
+    lost = {"id": 11, "kind": "box", "body": "", "center": [1.3, 0.0, 0.9],
+            "extent": [0.1, 0.1, 0.1], "rotation": np.eye(3).tolist()}  # fmt: skip
+    prims[0]["inliers"] = 5000
+    kept = scene_figures.in_roi([*prims, floor, leg, lost], ROI)
+    assert [p["id"] for p in kept] == [1, 2, 3, 10, 11]  # the floor's top is 0.75 m below
+    assert [p["id"] for p in scene_figures.labels(kept)] == [1, 2, 3, 11]  # the leg: no label
