@@ -151,6 +151,7 @@ class EpisodeResult:
     registration: bool = True
     camera_hfov_deg: float = 0.0  # the head camera's horizontal field of view (the map's wedges)
     recording: str = ""  # the rerun recording of the episode (``--save-view``), if any
+    out: str = ""  # the episode's directory (the views' images are relative to it)
     roi: list[list[float]] = field(default_factory=list)
     centre: list[float] = field(default_factory=list)
     #: the final map's obstacles seen from above (occupied voxels 5 cm-2 m): a PNG in the
@@ -400,7 +401,7 @@ class Episode:
             c.scene, c.strategy, c.sampling, c.fusion, c.seed,
             roi=[list(map(float, roi_lo)), list(map(float, roi_hi))],
             centre=list(map(float, facts.centre)),
-            robot=c.robot, noise=c.noise, registration=c.registration,
+            robot=c.robot, noise=c.noise, registration=c.registration, out=str(c.out),
         )  # fmt: skip
         self.supervisor = supervisor
         supervisor.start()

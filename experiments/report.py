@@ -332,16 +332,19 @@ def episode_figures(e: dict, out: Path, tag: str) -> list[Path | str]:
 def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Path) -> Path:
     """report.html, one self-contained file (images inlined): per episode a summary (the
     set-up, why it stopped, the final figures), the fused scene rendered and its support graph
-    drawn, the views with their colour images; then the plots, each with its caption."""
+    drawn (of the first seed only, where seeds are compared), the views with their colour
+    images; then the plots, each with its caption."""
     parts = [f"<!doctype html><meta charset=utf-8><title>{html.escape(title)}</title>",
              '<meta name="viewport" content="width=device-width, initial-scale=1">',
              f"<style>{STYLE}</style>", f"<h1>{html.escape(title)}</h1>"]  # fmt: skip
+    first_seed = min((e.get("seed", 0) for e in tables.values()), default=0)
     for i, (label, e) in enumerate(tables.items()):
         parts.append(f"<h2>{html.escape(label)}</h2><table class=summary>")
         parts += [f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>"
                   for k, v in summary_rows(e)]  # fmt: skip
         parts.append("</table>")
-        if e.get("final_primitives") or e.get("final_support") or e.get("final_missed"):
+        drawn = e.get("final_primitives") or e.get("final_support") or e.get("final_missed")
+        if drawn and e.get("seed", 0) == first_seed:  # (compared: each strategy's first seed)
             figures = episode_figures(e, out, "" if len(tables) == 1 else f"_{i}")
             parts.append('<div class="pair">')
             for f in figures:
@@ -353,7 +356,7 @@ def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Pa
         for r in e["views"]:
             cells = "".join(f'<td class="n">{html.escape(cell(r))}</td>'
                             for _, _, cell in VIEW_COLUMNS)  # fmt: skip
-            thumb = out / r["rgb"] if r.get("rgb") else None
+            thumb = Path(e.get("out") or out) / r["rgb"] if r.get("rgb") else None
             shown = thumb is not None and thumb.is_file()
             image = _img(thumb, f"view {r['view'] + 1}", "thumb") if shown else ""
             parts.append(f"<tr>{cells}<td>{image}</td></tr>")

@@ -179,3 +179,7 @@ def test_compare_fusion_modes_keys_runs_strategy_slash_fusion_and_plots_f1_per_v
     assert numbers["random/pc"]["median"][0] > 0.5, numbers
     assert (tmp_path / "fusion_f1.png").stat().st_size > 10_000
     assert "random/pc" in out.stdout and "fusion_f1" in (tmp_path / "report.html").read_text()
+    # each episode's views with their images (in the episode's directory), each mode's scene
+    alts = layout(tmp_path / "report.html", tmp_path)["alts"]
+    assert [a for a in alts if a.startswith("view ")] == ["view 1", "view 2"] * 2, alts
+    assert {"fused_scene_0", "support_graph_0", "fused_scene_1", "support_graph_1"} <= set(alts)
