@@ -35,7 +35,6 @@ import zenoh
 from avs.launcher import Supervisor
 from avs.services import BY_NAME
 from experiments import evaluation, scene_figures
-from experiments.scene_figures import thumbnail
 from schemas import (
     BasePose,
     BoxQuery,
@@ -495,7 +494,8 @@ class Episode:
                     scores.vertex_precision, scores.segments_per_body, scores.bodies_merged,
                     pose_error[0], pose_error[1], registration_ms, registration,
                     np.round(T_used, 6).tolist(), np.round(T_true, 6).tolist(),
-                    thumbnail(frame.rgb, c.out / "views" / f"view_{s.view}.jpg", c.out),
+                    scene_figures.thumbnail(frame.rgb, c.out / "views" / f"view_{s.view}.jpg",
+                                            c.out),
                 )  # fmt: skip
                 result.views.append(record)
                 K = frame.intrinsics

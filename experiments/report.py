@@ -235,10 +235,9 @@ def _img(path: Path, alt: str, cls: str = "") -> str:
     return f'<img{c} alt="{html.escape(alt)}" src="data:{mime};base64,{data}">'
 
 
-def _figure(path: Path, caption: str | None = None) -> str:
-    text = caption if caption is not None else CAPTIONS.get(path.stem.rsplit("_", 1)[0]
-                                                            if path.stem[-1].isdigit()
-                                                            else path.stem, "")  # fmt: skip
+def _figure(path: Path, name: str | None = None) -> str:
+    """The image with the caption of ``name`` (default: its file's name) from ``CAPTIONS``."""
+    text = CAPTIONS.get(name or path.stem, "")
     return (
         f"<figure>{_img(path, path.stem)}"
         + (f"<figcaption>{html.escape(text)}</figcaption>" if text else "")
@@ -309,12 +308,12 @@ STYLE = (
 )
 
 
-def episode_figures(e: dict, out: Path, tag: str) -> list[Path | str]:
+def episode_figures(e: dict, out: Path, tag: str) -> list[tuple[str, Path | str]]:
     """The fused-scene rendering and the support graph of episode ``e`` (files ``NAME{tag}``
     in ``out``); where one cannot be drawn, why (a string) in its place."""
     from experiments import scene_figures
 
-    made: list[Path | str] = []
+    made: list[tuple[str, Path | str]] = []
     prims = e.get("final_primitives") or []
     for name, draw in (
         ("fused_scene", lambda: scene_figures.scene_image(prims, e["roi"], out)),
@@ -323,9 +322,9 @@ def episode_figures(e: dict, out: Path, tag: str) -> list[Path | str]:
     ):  # fmt: skip
         try:
             path = draw()
-            made.append(path.rename(out / f"{name}{tag}.png"))
+            made.append((name, path.rename(out / f"{name}{tag}.png")))
         except Exception as err:  # the report goes on without it, and says why
-            made.append(f"{name}: not drawn ({type(err).__name__}: {err})")
+            made.append((name, f"{name}: not drawn ({type(err).__name__}: {err})"))
     return made
 
 
@@ -347,8 +346,9 @@ def html_report(title: str, images: list[Path], tables: dict[str, dict], out: Pa
         if drawn and e.get("seed", 0) == first_seed:  # (compared: each strategy's first seed)
             figures = episode_figures(e, out, "" if len(tables) == 1 else f"_{i}")
             parts.append('<div class="pair">')
-            for f in figures:
-                parts.append(_figure(f) if isinstance(f, Path) else f"<p>{html.escape(f)}</p>")
+            for name, f in figures:
+                parts.append(_figure(f, name) if isinstance(f, Path)
+                             else f"<p>{html.escape(f)}</p>")  # fmt: skip
             parts.append("</div>")
         head = "".join(f"<th>{html.escape(h)}<br><small>{html.escape(u)}</small></th>"
                        for h, u, _ in VIEW_COLUMNS)  # fmt: skip

@@ -73,30 +73,6 @@ def support_verdicts(edges, bodies: dict[int, str], scores) -> list[dict]:
 # -- the fused scene, rendered ----------------------------------------------------------------
 
 
-def _quat(R: np.ndarray) -> np.ndarray:
-    """MuJoCo's quaternion (w, x, y, z) of a rotation matrix (made proper first)."""
-    import mujoco
-
-    U, _, Vt = np.linalg.svd(np.asarray(R, float))
-    R = U @ Vt
-    if np.linalg.det(R) < 0:
-        R = U @ np.diag([1, 1, -1]) @ Vt
-    q = np.zeros(4)
-    mujoco.mju_mat2Quat(q, R.reshape(-1))
-    return q
-
-
-def _z_to(axis: np.ndarray) -> np.ndarray:
-    """A rotation taking z to ``axis``."""
-    a = np.asarray(axis, float) / np.linalg.norm(axis)
-    z = np.array([0.0, 0.0, 1.0])
-    v, c = np.cross(z, a), float(z @ a)
-    if np.linalg.norm(v) < 1e-9:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    K = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + K + K @ K / (1 + c)
-
-
 def scene_xml(primitives: list[dict]) -> str:
     """An MJCF world of the primitives as geoms: boxes and planes as their OBBs (a plane at
     least 1 cm thick), cylinders and spheres as fitted; each in its colour."""
@@ -107,19 +83,18 @@ def scene_xml(primitives: list[dict]) -> str:
             rgb = KIND_RGB[p["kind"]]
         rgba = " ".join(f"{c:.3f}" for c in (*rgb, 1.0))
         model = p.get("model") or {}
-        if p["kind"] == "cylinder" and model:
-            q = _quat(_z_to(model["axis"]))
+        if p["kind"] == "cylinder" and model:  # MuJoCo turns the geom's z onto the axis
             size = f"{model['radius']:.4f} {max(model['height'], 0.005) / 2:.4f}"
             geoms.append(f'<geom type="cylinder" size="{size}" pos="{_v(model["center"])}" '
-                         f'quat="{_v(q)}" rgba="{rgba}"/>')  # fmt: skip
+                         f'zaxis="{_v(model["axis"])}" rgba="{rgba}"/>')  # fmt: skip
         elif p["kind"] == "sphere" and model:
             geoms.append(f'<geom type="sphere" size="{model["radius"]:.4f}" '
                          f'pos="{_v(model["center"])}" rgba="{rgba}"/>')  # fmt: skip
         else:
             half = np.maximum(np.asarray(p["extent"], float) / 2, 0.005)
-            q = _quat(np.asarray(p.get("rotation") or np.eye(3)))
+            R = np.asarray(p.get("rotation") or np.eye(3), float)  # MuJoCo makes x, y, x×y
             geoms.append(f'<geom type="box" size="{_v(half)}" pos="{_v(p["center"])}" '
-                         f'quat="{_v(q)}" rgba="{rgba}"/>')  # fmt: skip
+                         f'xyaxes="{_v(R[:, 0])} {_v(R[:, 1])}" rgba="{rgba}"/>')  # fmt: skip
     return ('<mujoco><asset><texture type="skybox" builtin="flat" rgb1="0.97 0.97 0.97" '
             'rgb2="0.97 0.97 0.97" width="16" height="16"/></asset>'
             '<visual><global offwidth="1600" offheight="1200"/>'

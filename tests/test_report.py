@@ -153,8 +153,9 @@ def test_a_report_in_a_browser_has_every_picture_and_fits_1280_px(tmp_path):
 def test_no_primitives_no_pictures_and_the_page_says_why_a_drawing_failed(tmp_path):
     e = {"roi": ROI, "final_primitives": [{"id": 1, "kind": "plane", "center": [0, 0, 0]}]}
     made = report.episode_figures(e, tmp_path, "")
-    assert isinstance(made[0], str) and made[0].startswith("fused_scene: not drawn (KeyError")
-    assert isinstance(made[1], Path) and made[1].name == "support_graph.png"
+    (scene, text), (graph, path) = made
+    assert scene == "fused_scene" and text.startswith("fused_scene: not drawn (KeyError")
+    assert graph == "support_graph" and isinstance(path, Path) and path.name == "support_graph.png"
 
 
 def test_the_information_gain_plot_names_its_unit_and_its_seed_only_when_there_are_several(
