@@ -24,6 +24,9 @@ from services.scene_memory.voxel_map import find
 
 #: a voxel's plane is refitted once its count has grown by this factor since the last fit
 REFIT = 1.5
+#: ``_behind``: |cos| of the angle between a surface's normal and the direction it was seen
+#: along (or the camera's direction now) below which its side is not judged (about 78°)
+FACING = 0.2
 #: the unknowns ``icp`` solves for, of the step (ωx, ωy, ωz, tx, ty, tz) (world frame): all
 #: six, or the platform's shift in the ground plane and its yaw about the world's vertical
 FULL = np.arange(6, dtype=np.int64)
@@ -220,14 +223,37 @@ def _moved(T: np.ndarray, p: np.ndarray, i: int) -> tuple[float, float, float]:
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _behind(
+    stats: np.ndarray, s: int, nx: float, ny: float, nz: float,
+    x: float, y: float, z: float, eye: np.ndarray,
+) -> bool:  # fmt: skip
+    """Whether a camera at ``eye`` looks at voxel ``s``'s surface (normal n, through the point
+    x, y, z) from behind, as it was seen so far (its points' directions to their cameras,
+    Σv): the far face of a thin body seen for the first time, which must not be matched to
+    its near face a few centimetres away (a frame from behind a 10 cm box slid 6 cm onto it).
+    Only where the surface's side is clear (Σv, normalised, at least ``FACING`` off its
+    plane) and the camera is clearly on the other (the same margin): a grazing view decides
+    nothing. ``eye`` NaN: no check."""
+    vx, vy, vz = stats[s, 10], stats[s, 11], stats[s, 12]
+    seen = nx * vx + ny * vy + nz * vz
+    length = math.sqrt(vx * vx + vy * vy + vz * vz)
+    if not (length > 0.0) or abs(seen) < FACING * length or math.isnan(eye[0]):
+        return False
+    ex, ey, ez = eye[0] - x, eye[1] - y, eye[2] - z
+    now = nx * ex + ny * ey + nz * ez
+    distance = math.sqrt(ex * ex + ey * ey + ez * ez)
+    return (now > 0.0) != (seen > 0.0) and abs(now) > FACING * distance
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _residual(
     source: np.ndarray, i: int, T: np.ndarray, table: np.ndarray, index: np.ndarray,
     stats: np.ndarray, voxel: float, planes: np.ndarray, fitted: np.ndarray, thickness: float,
-    d2: float, cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    d2: float, cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], eye: np.ndarray,
 ) -> tuple[bool, float, float, float, float, float, float, float]:  # fmt: skip
     """Point ``source[i]`` moved by ``T`` against the map: whether it has a match within
-    √``d2`` that has a plane, its point-to-plane residual, the plane's normal and the moved
-    point."""
+    √``d2`` that has a plane facing the camera at ``eye`` (moved by ``T`` already; ``_behind``),
+    its point-to-plane residual, the plane's normal and the moved point."""
     cell, rows, means, plane = cache
     x, y, z = _moved(T, source, i)
     s, mx, my, mz = _match(table, stats, voxel, x, y, z, i, cell, rows, means)
@@ -236,7 +262,18 @@ def _residual(
     if not _plane(table, index, stats, voxel, s, planes, fitted, thickness, i, rows, plane):
         return False, 0.0, 0.0, 0.0, 0.0, x, y, z
     nx, ny, nz = plane[i, 0], plane[i, 1], plane[i, 2]
+    if _behind(stats, s, nx, ny, nz, x, y, z, eye):
+        return False, 0.0, 0.0, 0.0, 0.0, x, y, z
     return True, nx * x + ny * y + nz * z + plane[i, 3], nx, ny, nz, x, y, z
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _moved_eye(T: np.ndarray, eye: np.ndarray) -> np.ndarray:
+    """The camera position ``eye`` (3,) moved by ``T`` (NaN stays NaN: no check)."""
+    out = np.empty(3)
+    for a in range(3):
+        out[a] = T[a, 0] * eye[0] + T[a, 1] * eye[1] + T[a, 2] * eye[2] + T[a, 3]
+    return out
 
 
 @njit(cache=True, nogil=True)
@@ -259,12 +296,14 @@ def icp(
     thickness: float, T0: np.ndarray, max_distance: float, kernel: float, iterations: int,
     tolerance: float, weights: np.ndarray,
     cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], free: np.ndarray,
+    eye: np.ndarray,
 ) -> tuple[np.ndarray, int]:  # fmt: skip
     """Point-to-plane Gauss-Newton with Tukey's biweight (k = ``kernel``) from ``T0``: the
     transform (world → world) that puts ``source`` (n, 3) on the map, and the steps taken.
     Each step solves for the unknowns ``free`` (``FULL``, ``PLANAR``), the others stay 0.
     A match farther than ``max_distance`` from its voxel's mean is dropped; the loop stops
-    when a step moves less than ``tolerance`` (m, or rad × 1 m)."""
+    when a step moves less than ``tolerance`` (m, or rad × 1 m). ``eye``: the camera's
+    position (world, as ``source``; NaN: unknown), for ``_behind``."""
     T = T0.copy()
     k2 = kernel * kernel
     d2 = max_distance * max_distance
@@ -274,9 +313,10 @@ def icp(
         H = np.zeros((6, 6))
         g = np.zeros(6)
         J = np.empty(6)
+        at = _moved_eye(T, eye)
         for i in range(source.shape[0]):
             ok, r, nx, ny, nz, x, y, z = _residual(
-                source, i, T, table, index, stats, voxel, planes, fitted, thickness, d2, cache
+                source, i, T, table, index, stats, voxel, planes, fitted, thickness, d2, cache, at
             )
             if not ok or r * r >= k2:
                 continue
@@ -315,18 +355,20 @@ def residuals(
     source: np.ndarray, table: np.ndarray, index: np.ndarray,
     stats: np.ndarray, voxel: float, planes: np.ndarray, fitted: np.ndarray,
     thickness: float, T: np.ndarray, max_distance: float,
-    cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], eye: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Where ``source`` moved by ``T`` meets the map: per point whether it is matched within
-    ``max_distance``, its point-to-plane residual and the match's normal."""
+    ``max_distance`` (by a surface that faces the camera at ``eye``, as ``icp``), its
+    point-to-plane residual and the match's normal."""
     n = source.shape[0]
     matched = np.zeros(n, np.bool_)
     r = np.zeros(n)
     nrm = np.zeros((n, 3))
     d2 = max_distance * max_distance
+    at = _moved_eye(T, eye)
     for i in range(n):
         ok, ri, nx, ny, nz, _, _, _ = _residual(
-            source, i, T, table, index, stats, voxel, planes, fitted, thickness, d2, cache
+            source, i, T, table, index, stats, voxel, planes, fitted, thickness, d2, cache, at
         )
         if ok:
             matched[i] = True

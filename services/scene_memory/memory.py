@@ -165,7 +165,7 @@ class SceneMemory:
             # refused frame, fused where odometry puts it, would give the next frame a
             # misplaced copy of the scene to align to
             t2 = time.perf_counter()
-            self._registration_map().add(pts)
+            self._registration_map().add(pts, T[:3, 3])
             self.timings_ms["registration_map_ms"] = (time.perf_counter() - t2) * 1e3
         rgb = (
             frame.rgb[::2, ::2][v, u]
@@ -287,7 +287,9 @@ class SceneMemory:
 
     def _registration_map(self) -> RegistrationMap:
         if self.registration_map is None:
-            self.registration_map = RegistrationMap.of(self.cloud, self.config.registration)
+            self.registration_map = RegistrationMap.of(
+                self.cloud, self.config.registration, self._viewpoints()
+            )
         return self.registration_map
 
     def fuse(self, obs: SceneObservation, correction: object = LAST) -> Update:

@@ -129,14 +129,19 @@ class RegistrationMap:
         self.levels = [VoxelMap(p.map_voxel) for p in c.passes]
 
     @classmethod
-    def of(cls, points: np.ndarray, config: RegistrationConfig | None = None) -> RegistrationMap:
+    def of(
+        cls, points: np.ndarray, config: RegistrationConfig | None = None,
+        eyes: np.ndarray | None = None,
+    ) -> RegistrationMap:  # fmt: skip
         out = cls(config)
-        out.add(points)
+        out.add(points, eyes)
         return out
 
-    def add(self, points_world: np.ndarray) -> None:
+    def add(self, points_world: np.ndarray, eyes: np.ndarray | None = None) -> None:
+        """Add points (world frame); ``eyes``: the camera they were seen from (3,) or each
+        one's (n, 3), so that a frame is not matched to the far side of what it sees."""
         for level in self.levels:
-            level.add(points_world)
+            level.add(points_world, eyes)
 
     def __len__(self) -> int:
         return len(self.levels[-1])
@@ -227,6 +232,7 @@ def register(
         target = RegistrationMap.of(np.asarray(target, np.float64), c)
     points_camera = np.ascontiguousarray(points_camera, np.float64)
     R, t = T_prior[:3, :3], T_prior[:3, 3]
+    camera = np.ascontiguousarray(t, np.float64)  # for icp's check of sides
     cams = _sources(points_camera, c)
     sources = [np.ascontiguousarray(q @ R.T + t) for q in cams]
     weights = [depth_weights(q[:, 2], c) for q in cams]
@@ -237,26 +243,26 @@ def register(
     caches = [candidates(len(s)) for s in sources]
     first, level = c.passes[0], target.levels[0]
     near, _, _ = residuals(
-        sources[0], *level.arrays(), first.thickness, eye, first.distance, caches[0]
+        sources[0], *level.arrays(), first.thickness, np.eye(4), first.distance, caches[0], camera
     )
     if near.sum() < min(c.min_points, len(near) // 2):
         return refuse("no_map_here")
-    correction = eye
+    correction = np.eye(4)
     planar = c.dof == "planar"
     free = PLANAR if planar else FULL
     passes = zip(c.passes, target.levels, sources, weights, caches, strict=True)
     for p, level, source, w, cache in passes:
         correction, _ = icp(source, *level.arrays(), p.thickness, correction, p.distance, p.kernel,
-                            c.iterations, c.tolerance, w, cache, free)  # fmt: skip
+                            c.iterations, c.tolerance, w, cache, free, camera)  # fmt: skip
     matched, r, normals = residuals(
-        source, *level.arrays(), p.thickness, correction, p.distance, cache
+        source, *level.arrays(), p.thickness, correction, p.distance, cache, camera
     )
     # the overlap: the share of the frame that lies on the map within the second finest
     # pass's reach (a point finds its candidates within about one voxel, 3 cm; the finest
     # pass's 1.5 cm would count a surface the depth noise blurs as half off the map)
     k = max(len(c.passes) - 2, 0)
     near, _, _ = residuals(sources[k], *target.levels[k].arrays(), c.passes[k].thickness,
-                           correction, c.passes[k].distance, caches[k])  # fmt: skip
+                           correction, c.passes[k].distance, caches[k], camera)  # fmt: skip
     fitness = float(near.mean())
     rmse = float(np.sqrt(np.mean(r[matched] ** 2))) if matched.any() else math.inf
     cond = 0.0
@@ -267,7 +273,7 @@ def register(
     if planar:
         scores["off_plane_m"], scores["off_plane_deg"] = off_plane(
             sources[0], target.levels[0], c.passes[0], correction, correction @ T_prior,
-            weights[0], caches[0], c
+            weights[0], caches[0], c, camera
         )  # fmt: skip
     if fitness < c.min_fitness:
         return refuse("low_fitness", **scores)
@@ -289,14 +295,14 @@ def register(
 
 def off_plane(
     source: np.ndarray, level: VoxelMap, p: Pass, correction: np.ndarray, T_camera: np.ndarray,
-    weights: np.ndarray, cache: tuple, c: RegistrationConfig,
+    weights: np.ndarray, cache: tuple, c: RegistrationConfig, eye: np.ndarray,
 ) -> tuple[float, float]:  # fmt: skip
     """What a planar fit leaves: from ``correction``, a few full (six-unknown) Gauss-Newton
     steps on the coarsest pass with its whole reach as the kernel (a height 4 cm off is past
     the finer passes' kernels: their matches on the floor weigh nothing and show nothing); how
     far they move the camera (``T_camera``) vertically (m) and tilt it (degrees)."""
     T, _ = icp(source, *level.arrays(), p.thickness, correction, p.distance, p.distance,
-               3, c.tolerance, weights, cache, FULL)  # fmt: skip
+               3, c.tolerance, weights, cache, FULL, eye)  # fmt: skip
     step = T @ np.linalg.inv(correction)
     centre = T_camera[:3, 3]
     height = abs(float((step[:3, :3] @ centre + step[:3, 3])[2] - centre[2]))

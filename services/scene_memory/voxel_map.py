@@ -1,5 +1,6 @@
 """The registered cloud summarised per voxel for registration (numba): for every voxel its
-point count, Σp and Σppᵀ, in an open-addressing hash that grows with the map.
+point count, Σp, Σppᵀ and the sum of the unit directions its points were seen along (from the
+point to the camera), in an open-addressing hash that grows with the map.
 
 Frames are added as they are integrated (a frame's points are first summarised in a small
 table of their own, which stays in cache, then merged: one probe of the big table per voxel,
@@ -19,6 +20,9 @@ _OFFSET = 1 << 20  # voxel indices within ±2²⁰ (±21 km at 2 cm) pack into 2
 _EMPTY = -1
 #: the table is grown when more than this share of its slots is taken
 _LOAD = 0.5
+#: a voxel's sums: count, Σp (3), Σppᵀ (6), Σ of the unit vectors from each point to the
+#: camera that saw it (3: zero where no camera was given)
+STATS = 13
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -71,16 +75,20 @@ def _row(table: np.ndarray, index: np.ndarray, m: int, ix, iy, iz) -> tuple:
 
 
 @njit(cache=True, nogil=True)
-def summarise(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
-    """The points' voxels (m, 3) and their sums (m, 10): count, Σp (3), Σppᵀ (xx, xy, xz, yy,
-    yz, zz), each relative to its voxel's corner (float64 sums of small numbers)."""
+def summarise(
+    points: np.ndarray, voxel: float, eyes: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points' voxels (m, 3) and their sums (m, ``STATS``): count, Σp (3), Σppᵀ (xx, xy,
+    xz, yy, yz, zz), each relative to its voxel's corner (float64 sums of small numbers), and
+    Σ of the unit vectors from each point to where it was seen from: ``eyes`` (1, 3) one
+    camera for all, (n, 3) one per point, None: not known (zeros)."""
     n = points.shape[0]
     size = 16
     while size < 2 * n:
         size *= 2
     table = np.full((size, 2), _EMPTY, np.int64)
     index = np.empty((n, 3), np.int64)
-    stats = np.zeros((n, 10))
+    stats = np.zeros((n, STATS))
     inv = 1.0 / voxel
     m = 0
     for i in range(n):
@@ -103,6 +111,15 @@ def summarise(points: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]
         row[7] += y * y
         row[8] += y * z
         row[9] += z * z
+        if eyes is not None:
+            e = 0 if eyes.shape[0] == 1 else i
+            vx, vy = eyes[e, 0] - points[i, 0], eyes[e, 1] - points[i, 1]
+            vz = eyes[e, 2] - points[i, 2]
+            length = math.sqrt(vx * vx + vy * vy + vz * vz)
+            if length > 0:
+                row[10] += vx / length
+                row[11] += vy / length
+                row[12] += vz / length
     return index[:m].copy(), stats[:m].copy()
 
 
@@ -122,7 +139,7 @@ def _merge(table, index, stats, m, new_index, new_stats) -> int:
     """Add a frame's voxel sums to the map's (the same voxel size); the map's new size."""
     for i in range(new_index.shape[0]):
         s, m = _row(table, index, m, new_index[i, 0], new_index[i, 1], new_index[i, 2])
-        for k in range(10):
+        for k in range(STATS):
             stats[s, k] += new_stats[i, k]
     return m
 
@@ -143,33 +160,38 @@ def _rehash(index: np.ndarray, m: int, size: int) -> np.ndarray:
 
 class VoxelMap:
     """One resolution of the map for registration. ``index[:size]``, ``stats[:size]``: the
-    voxels and their sums (see ``summarise``); ``planes``/``fitted``: each voxel's plane
-    (n, d), fitted lazily by ``icp`` and refitted once its count has grown by half."""
+    voxels and their sums (see ``summarise``: the directions they were seen along let a frame
+    from the other side of a thin body not match its far face to the near one);
+    ``planes``/``fitted``: each voxel's plane (n, d), fitted lazily by ``icp`` and refitted
+    once its count has grown by half."""
 
     def __init__(self, voxel: float) -> None:
         self.voxel = float(voxel)
         self.size = 0
         self.table = empty_table(1024)
         self.index = np.zeros((512, 3), np.int64)
-        self.stats = np.zeros((512, 10))
+        self.stats = np.zeros((512, STATS))
         self.planes = np.zeros((512, 4))
         #: the count at the last fit of the normal (0: never), negative when it failed
         self.fitted = np.zeros(512)
 
     @classmethod
-    def of(cls, points: np.ndarray, voxel: float) -> VoxelMap:
+    def of(cls, points: np.ndarray, voxel: float, eyes: np.ndarray | None = None) -> VoxelMap:
         out = cls(voxel)
-        out.add(points)
+        out.add(points, eyes)
         return out
 
-    def add(self, points: np.ndarray) -> None:
-        """Add points (n, 3, world frame) to the sums."""
-        index, stats = summarise(np.ascontiguousarray(points, np.float64), self.voxel)
+    def add(self, points: np.ndarray, eyes: np.ndarray | None = None) -> None:
+        """Add points (n, 3, world frame) to the sums; ``eyes``: where they were seen from
+        (see ``summarise``)."""
+        if eyes is not None:
+            eyes = np.ascontiguousarray(np.reshape(eyes, (-1, 3)), np.float64)
+        index, stats = summarise(np.ascontiguousarray(points, np.float64), self.voxel, eyes)
         need = self.size + len(index)
         if need > len(self.index):
             grow = max(need, 2 * len(self.index)) - len(self.index)
             self.index = np.concatenate([self.index, np.zeros((grow, 3), np.int64)])
-            self.stats = np.concatenate([self.stats, np.zeros((grow, 10))])
+            self.stats = np.concatenate([self.stats, np.zeros((grow, STATS))])
             self.planes = np.concatenate([self.planes, np.zeros((grow, 4))])
             self.fitted = np.concatenate([self.fitted, np.zeros(grow)])
         if need > _LOAD * len(self.table):
@@ -196,7 +218,12 @@ class VoxelMap:
     def __setstate__(self, state: dict) -> None:
         self.voxel = float(state["voxel"])
         self.index = np.array(state["index"], np.int64).reshape(-1, 3)
-        self.stats = np.array(state["stats"], np.float64).reshape(-1, 10)
+        stats = np.array(state["stats"], np.float64).reshape(len(self.index), -1)
+        if not len(self.index):
+            stats = np.zeros((0, STATS))
+        if stats.shape[1] < STATS:  # a snapshot from before the directions were kept
+            stats = np.hstack([stats, np.zeros((len(stats), STATS - stats.shape[1]))])
+        self.stats = stats
         self.size = len(self.index)
         self.planes = np.zeros((self.size, 4))
         self.fitted = np.zeros(self.size)

@@ -15,6 +15,8 @@ from services.scene_memory.icp import FULL, candidates, icp, residuals, smallest
 from services.scene_memory.registration import RegistrationConfig
 from services.scene_memory.voxel_map import VoxelMap, find, means, summarise
 
+NO_EYE = np.full(3, np.nan)  # no camera: no check of the side a surface is seen from
+
 
 def numpy_sums(points: np.ndarray, voxel: float) -> dict[tuple[int, int, int], np.ndarray]:
     """count, Σp, Σppᵀ (xx, xy, xz, yy, yz, zz) per voxel, relative to its corner."""
@@ -38,7 +40,8 @@ def test_summarise_matches_numpy_and_skips_non_finite_points():
     want = numpy_sums(finite, 0.05)
     assert len(index) == len(want)
     for k, row in zip(map(tuple, index), stats, strict=True):
-        np.testing.assert_allclose(row, want[k], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(row[:10], want[k], rtol=1e-12, atol=1e-12)
+    assert not stats[:, 10:].any()  # no camera given: no directions
     assert stats[:, 0].sum() == len(finite)
     centres = means(index, stats, 0.05)
     assert np.all(np.floor(centres / 0.05).astype(np.int64) == index)  # a mean is in its voxel
@@ -108,7 +111,7 @@ def test_planes_of_the_map_are_the_surfaces():
     m = VoxelMap.of(corner(rng), 0.03)
     probe = np.ascontiguousarray(corner(rng, 500))
     cache = candidates(len(probe))
-    matched, r, normals = residuals(probe, *m.arrays(), 1.0, np.eye(4), 0.05, cache)
+    matched, r, normals = residuals(probe, *m.arrays(), 1.0, np.eye(4), 0.05, cache, NO_EYE)
     assert matched.all()
     R = rotation([1, 2, 3], 25)
     local = (probe - (0.3, -0.2, 0.9)) @ R  # the corner's own frame: faces z = 0, y = 0, x = 0
@@ -121,7 +124,9 @@ def test_planes_of_the_map_are_the_surfaces():
     assert np.abs(r).max() < 0.015  # at the edges: a plane through both faces' points
     # a plane whose points spread more than 2 mm about it is none: the edges lose theirs
     m = VoxelMap.of(corner(rng), 0.03)
-    strict, _, _ = residuals(probe, *m.arrays(), 0.002, np.eye(4), 0.05, candidates(len(probe)))
+    strict, _, _ = residuals(
+        probe, *m.arrays(), 0.002, np.eye(4), 0.05, candidates(len(probe)), NO_EYE
+    )
     assert strict[inside].all()
     edge = np.sort(np.abs(local), axis=1)[:, 1] < 0.01
     assert edge.sum() > 20 and not strict[edge].any()
@@ -144,8 +149,9 @@ def test_icp_takes_a_perturbed_corner_back(seed):
     weights = np.ones(len(moved))
     for p in RegistrationConfig().passes:
         m = VoxelMap.of(target, p.map_voxel)
-        correction, steps = icp(moved, *m.arrays(), p.thickness, correction, p.distance, p.kernel,
-                                30, 1e-5, weights, candidates(len(moved)), FULL)  # fmt: skip
+        correction, steps = icp(moved, *m.arrays(), p.thickness, correction, p.distance,
+                                p.kernel, 30, 1e-5, weights, candidates(len(moved)), FULL,
+                                NO_EYE)  # fmt: skip
         assert steps >= 1
     metres, degrees = pose_difference(T_true, correction @ T_prior)
     assert metres < 0.001 and degrees < 0.1, (metres, degrees)
