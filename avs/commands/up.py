@@ -36,6 +36,12 @@ log = logging.getLogger("avs.up")
 #: uncapped, perception took 11 a second, which the fusion could not keep up with, and the
 #: semantic model fell seconds behind
 LIVE_PERCEPTION_RATE = 6.0
+#: with the sensor models on, each view registration is weighed against the odometry's error,
+#: 2 % of the camera's motion (the sim's platform drifts 1.5 % of the distance;
+#: services/scene_memory/correction_filter.py): taken as they come, registrations of frames
+#: that barely overlap the map while the platform drives around the table were accepted 2.5°
+#: off in yaw (the odometry was 0.25° off), and the map kept the error
+LIVE_ODOMETRY_NOISE = 0.02
 #: the sim's scene when ``--scene`` is not given (services/sim/config.py's default)
 DEFAULT_SCENE = "tabletop_occluded"
 
@@ -139,11 +145,13 @@ def parse_scale(text: str) -> dict[str, int]:
 
 def service_env(args: argparse.Namespace) -> dict[str, str]:
     """Settings the launcher hands to the services: the scene memory's data directory, and the
-    sensor models with view registration (``--noise``) and perception's rate unless the
-    environment says otherwise."""
+    sensor models with view registration weighed against the odometry (``--noise``) and
+    perception's rate unless the environment says otherwise."""
     on = str(getattr(args, "noise", "on") == "on").lower()
     keys = ("AVS_SIM_NOISE", "AVS_SIM_SENSORS", "AVS_SCENE_MEMORY_REGISTRATION")
     noise = {k: on for k in keys if k not in os.environ}
+    if on == "true" and "AVS_SCENE_MEMORY_ODOMETRY_NOISE" not in os.environ:
+        noise["AVS_SCENE_MEMORY_ODOMETRY_NOISE"] = f"{LIVE_ODOMETRY_NOISE:g}"
     # perception at most LIVE_PERCEPTION_RATE frames a second (AVS_PERCEPTION_MAX_RATE=0 in the
     # environment: every frame)
     rate = (
