@@ -102,6 +102,9 @@ class FusionConfig:
     #: tray on it), the lower is dropped when the primitive's bottom is this much nearer the
     #: upper's top: a cup on a tray rests on the tray (the table holds it through the tray)
     nearer_top: float = 0.01
+    #: m: what does not rise this far above a ground surface's top does not lie on it: the
+    #: surface's own pieces (a table top fused in two), its edge's faces (``support``)
+    level_with: float = 0.01
     #: negative evidence (``evidence.py``): a primitive that this many views in a row saw
     #: through (more than ``through_share`` of its points with evidence, at least
     #: ``through_points`` of them) is gone from the scene; 0: never
@@ -1098,9 +1101,11 @@ class Fusion:
         box fitted to 2 m away Kinect points reaches centimetres past them). A primitive
         held by a and by m that a holds rests on m alone when its bottom is ``nearer_top``
         nearer m's top (support is direct: the thesis's graph has no edge that a chain of
-        two gives). Structure (``_structure``: a wall, a cabinet's front) rests on nothing
-        higher than the floor: a counter against a wall touches it, its top below the wall's
-        visible foot, and seemed to hold it up."""
+        two gives). What does not rise ``level_with`` above a ground surface's top is a part
+        of it (a piece of a table top fused in two, a face of its edge), not on it. Structure
+        (``_structure``: a wall, a cabinet's front) rests on nothing higher than the floor: a
+        counter against a wall touches it, its top below the wall's visible foot, and seemed to
+        hold it up."""
         c = self.config
         shapes = shapes or _Shapes()
         level, z_range = shapes.level_area, shapes.z_range
@@ -1115,6 +1120,8 @@ class Fusion:
                 continue
             if bodies[b].bottom < bodies[a].top - c.rest_tolerance:
                 continue
+            if on_ground and bodies[b].top <= bodies[a].top + c.level_with:
+                continue  # a piece of the surface, a face of its edge
             if z_range(pa.obb)[1] > c.floor_max and self._structure(pb, shapes):
                 continue  # a wall stands on the floor, not on the counter against it
             out[a, b] = n

@@ -105,3 +105,30 @@ def test_a_wall_behind_a_counter_does_not_rest_on_the_counter():
         update = fusion.update(observation(0, [floor, counter, room, jar], edges, T=T))
         name = {update.mapping[i]: n for i, n in enumerate(["floor", "counter", "wall", "jar"])}
         assert {(name[a], name[b]) for a, b in fusion.support()} == expected
+
+
+def test_pieces_and_edge_faces_of_a_table_top_do_not_rest_on_it():
+    """A table top fused as two pieces (a plane and a slab fitted to its edge, tops level) and
+    a face of its front edge: views reported slab → plane (the plane's bottom within
+    ``rest_tolerance`` of the slab's top) and plane → face, which the live stack's score counted
+    as "table supports table". What does not rise ``level_with`` above a ground surface's top
+    is a part of it, not on it; a tray 4 cm over the table still rests on it, a cup on it."""
+    table = plane(0, (0.2, 0.9), (-0.6, 0.6), 0.72)
+    piece = box(1, (1.25, 0.0, 0.705), (0.6, 1.2, 0.03))  # top at 0.72, beside the plane
+    cup = box(2, (0.5, 0.0, 0.77), (0.08, 0.08, 0.1))  # bottom at 0.72
+    tray = box(3, (1.3, 0.2, 0.74), (0.4, 0.6, 0.04))  # top at 0.76: a ground surface too
+    face = wall(4, (-0.6, 0.6), 0.2, (0.70, 0.72))  # the plane's front edge, 2 cm deep
+    edges = [(1, 0), (0, 1), (0, 2), (1, 3), (0, 4)]
+    names = ["table", "piece", "cup", "tray", "face"]
+    rests = {("table", "cup"), ("piece", "tray")}
+    for level_with, expected in (
+        (FusionConfig.level_with, rests),
+        # without the rule: the slab holds the plane up (the plane's bottom at the slab's top;
+        # the slab's bottom, 3 cm under the plane, keeps the reverse edge out), the plane its face
+        (-np.inf, rests | {("piece", "table"), ("table", "face")}),
+    ):
+        fusion = Fusion(FusionConfig(level_with=level_with))
+        update = fusion.update(observation(0, [table, piece, cup, tray, face], edges))
+        assert len(fusion.prims) == 5
+        name = {update.mapping[i]: n for i, n in enumerate(names)}
+        assert {(name[a], name[b]) for a, b in fusion.support()} == expected
