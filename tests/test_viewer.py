@@ -337,6 +337,11 @@ def test_view_web_is_loaded_by_chromium_and_records_the_ego_sphere(router, clien
     view.send_signal(signal.SIGINT)
     view.wait(60)
     assert view.returncode == 0
+    # and the rerun server it started ended with it (the binary under the venv's wrapper too)
+    wait_for(lambda: not {
+        c.laddr.port for c in psutil.net_connections(kind="inet")
+        if c.status == psutil.CONN_LISTEN and c.laddr.port in (web_port, grpc_port)
+    }, 10, "the rerun server's ports closed")  # fmt: skip
     rows = read_recording(rrd)
     points = np.array(last(rows, "/world/platform/ego_sphere", "Points3D:positions"))
     colours = last(rows, "/world/platform/ego_sphere", "Points3D:colors")

@@ -309,10 +309,13 @@ def serve_web(bind: str, web_port: int, grpc_port: int, timeout: float = 30.0) -
     elsewhere: this host's name) reaches it."""
     beside = rerun_beside()
     command = [beside] if beside else [sys.executable, "-m", "rerun"]
+    # its own process group, ended whole (``_end``): the venv's ``rerun`` is a Python wrapper
+    # that runs the rerun binary as its child, which outlived a terminated wrapper
     proc = subprocess.Popen(
         [*command, "--serve-web", "--bind", bind, "--port", str(grpc_port),
          "--web-viewer-port", str(web_port)],
         stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        start_new_session=True,
     )  # fmt: skip
     atexit.register(_end, proc)
     local = "127.0.0.1" if bind in ("0.0.0.0", "::", "") else bind
@@ -333,12 +336,21 @@ def serve_web(bind: str, web_port: int, grpc_port: int, timeout: float = 30.0) -
 
 
 def _end(proc: subprocess.Popen) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+    """End the rerun server and whatever it started (its process group, ``serve_web``)."""
+    import contextlib
+    import signal
+
+    def group(sig: int) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, sig)
+
+    group(signal.SIGTERM)
+    try:
+        proc.wait(5)
+    except subprocess.TimeoutExpired:
+        group(signal.SIGKILL)
+        proc.wait(5)
+    group(signal.SIGKILL)  # a child of the wrapper that is still there
 
 
 def _view(args: argparse.Namespace) -> int:
