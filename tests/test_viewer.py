@@ -309,13 +309,17 @@ def test_view_web_is_loaded_by_chromium_and_records_the_ego_sphere(router, clien
         line = view.stdout.readline()
     url = line.split("web viewer:", 1)[1].strip()
     assert url.startswith(f"http://localhost:{web_port}/")
+
+    def listening() -> set[tuple[str, int]]:
+        return {
+            (c.laddr.ip, c.laddr.port)
+            for c in psutil.net_connections(kind="inet")
+            if c.status == psutil.CONN_LISTEN and c.laddr.port in (web_port, grpc_port)
+        }
+
     # the page and the data proxy listen on this machine only (--bind, default 127.0.0.1)
-    listening = {
-        (c.laddr.ip, c.laddr.port)
-        for c in psutil.net_connections(kind="inet")
-        if c.status == psutil.CONN_LISTEN and c.laddr.port in (web_port, grpc_port)
-    }
-    assert listening == {("127.0.0.1", web_port), ("127.0.0.1", grpc_port)}, listening
+    bound = listening()
+    assert bound == {("127.0.0.1", web_port), ("127.0.0.1", grpc_port)}, bound
     with urllib.request.urlopen(url, timeout=10) as page:
         assert page.status == 200
         assert b"re_viewer" in page.read()
@@ -338,10 +342,7 @@ def test_view_web_is_loaded_by_chromium_and_records_the_ego_sphere(router, clien
     view.wait(60)
     assert view.returncode == 0
     # and the rerun server it started ended with it (the binary under the venv's wrapper too)
-    wait_for(lambda: not {
-        c.laddr.port for c in psutil.net_connections(kind="inet")
-        if c.status == psutil.CONN_LISTEN and c.laddr.port in (web_port, grpc_port)
-    }, 10, "the rerun server's ports closed")  # fmt: skip
+    wait_for(lambda: not listening(), 10, "the rerun server's ports closed")
     rows = read_recording(rrd)
     points = np.array(last(rows, "/world/platform/ego_sphere", "Points3D:positions"))
     colours = last(rows, "/world/platform/ego_sphere", "Points3D:colors")

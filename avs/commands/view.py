@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import argparse
 import atexit
+import contextlib
 import logging
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -337,20 +339,16 @@ def serve_web(bind: str, web_port: int, grpc_port: int, timeout: float = 30.0) -
 
 def _end(proc: subprocess.Popen) -> None:
     """End the rerun server and whatever it started (its process group, ``serve_web``)."""
-    import contextlib
-    import signal
 
     def group(sig: int) -> None:
         with contextlib.suppress(ProcessLookupError):
             os.killpg(proc.pid, sig)
 
     group(signal.SIGTERM)
-    try:
+    with contextlib.suppress(subprocess.TimeoutExpired):
         proc.wait(5)
-    except subprocess.TimeoutExpired:
-        group(signal.SIGKILL)
-        proc.wait(5)
-    group(signal.SIGKILL)  # a child of the wrapper that is still there
+    group(signal.SIGKILL)  # what is left of it (the wrapper's child included)
+    proc.wait(5)
 
 
 def _view(args: argparse.Namespace) -> int:
