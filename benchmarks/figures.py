@@ -70,6 +70,9 @@ REFERENCE_TABLES = (
     "| script | ours | peer | like for like |",
     # the real recordings' known facts: each row names the test or benchmark that checks it
     "| recording | fact | found by | checked in |",
+    # the README's headline table: derived from the blocks, never measured by hand
+    # (benchmarks/headline.py; tests/test_headline.py fails when it differs from them)
+    "| what | AVS | against | measured |",
     # the README's indexes: commands and documents, no figures
     "| command | what it does |",
     "| document | what is in it |",
@@ -803,6 +806,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("runs/figures"),
                    help="each figure's output directory and log (runs/figures)")  # fmt: skip
     p.add_argument("--dry-run", action="store_true", help="print what would run, run nothing")
+    p.add_argument(
+        "--headline",
+        action="store_true",
+        help="only rewrite the README's headline "
+        "table from the documents' blocks (benchmarks/headline.py); measure nothing",
+    )
     args = p.parse_args(argv)
     only, skip = parse_names(args.only), parse_names(args.skip)
     figures = [f for f in REGISTRY.values() if (not only or f.name in only) and f.name not in skip]
@@ -815,6 +824,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{'total':<{width}}  {sum(f.minutes for f in REGISTRY.values()):>4g} min")
         return 0
 
+    if args.headline:
+        return 0 if headline(Path.cwd()) else 2
     docs = [d if d.is_absolute() else Path.cwd() / d for d in args.docs or documents(Path.cwd())]
     try:
         where = find_blocks(docs, REGISTRY)
@@ -840,16 +851,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
 
     try:
-        return run(figures, where, out)
+        return run(figures, where, out, None if args.docs else Path.cwd())
     except KeyboardInterrupt:
         print("figures: interrupted (the blocks written so far stay)", file=sys.stderr)
         return 130
 
 
-def run(figures: list[Figure], where: dict[str, Path], out: Path) -> int:
+def run(figures: list[Figure], where: dict[str, Path], out: Path, root: Path | None = None) -> int:
     """Run ``figures`` one at a time into ``out``, rewriting each one's block in its document
     (``where``: figure → document) as each succeeds; the provenance gets the machine's speed
-    after the last.
+    after the last. ``root``: the checkout whose README's headline table is then rewritten
+    from the blocks (None: not).
     Returns 1 if any failed, else 0."""
     version = commit(*set(where.values()), out)
     blocks = set(where)
@@ -892,12 +904,29 @@ def run(figures: list[Figure], where: dict[str, Path], out: Path) -> int:
     if after is not None:
         for name, result in done.items():
             _write(name, result, version, (before, after), where, out)
+    if root is not None and done:
+        headline(root)
     unplaced = [name for name in done if name not in blocks]
     print(f"figures: rewritten {', '.join(n for n in done if n in blocks) or 'none'}; failed "
           f"{', '.join(failed) or 'none'}"
           + (f"; no block for {', '.join(unplaced)} (in {out}/NAME.md)" if unplaced else ""),
           flush=True)  # fmt: skip
     return 1 if failed else 0
+
+
+def headline(root: Path) -> bool:
+    """Rewrite ``root``'s README headline table from its documents' blocks
+    (``benchmarks/headline.py``); False, with the reason on stderr, if it cannot be made."""
+    from benchmarks import headline as table  # it reads the blocks with this module
+
+    try:
+        changed = table.rewrite(root)
+    except (OSError, FigureError) as e:
+        print(f"figures: the README's headline table: {e}", file=sys.stderr)
+        return False
+    print(f"figures: the README's headline table {'rewritten' if changed else 'as it was'}",
+          flush=True)  # fmt: skip
+    return True
 
 
 def _write(
