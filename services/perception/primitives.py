@@ -46,6 +46,7 @@ class ExtractionConfig:
     thin_orthogonal_deg: float = 25.0  # ... may be this far from orthogonal
     box_touch: float = 0.02
     box_edge_ratio: float = 0.6  # faces of a box: lengths along the common edge agree this well
+    box_concave: float = 0.005  # m: ... and each face's middle lies behind the other (convex)
     face_fill: float = 0.4  # ... and each face's points cover this much of its rectangle
     flat_ratio: float = 3.0  # a plane's OBB: middle extent ≥ this × its band (0: any) ...
     flat_band: float = 0.015  # ... where its inliers' band is thicker than this (m)
@@ -354,6 +355,14 @@ def _sin_orthogonal(wa: float, wb: float, config: ExtractionConfig) -> float:
     return math.sin(math.radians(config.thin_orthogonal_deg if thin else config.box_orthogonal_deg))
 
 
+def _convex(a: Extracted, b: Extracted, ca: np.ndarray, cb: np.ndarray, tol: float) -> bool:
+    """Two faces of one box each lie behind the other's plane (``ca``, ``cb``: their inliers'
+    means; normals face the camera, so out of a box): a box is convex. The inside of a
+    shelf (a board and a side panel), a table top and the wall behind it meet at a concave
+    edge and are no box."""
+    return float(a.normal @ cb) + a.d < tol and float(b.normal @ ca) + b.d < tol
+
+
 def _width(p: Extracted) -> float:
     """The narrower in-plane extent of a plane."""
     k = int(np.argmax(np.abs(p.box.rotation.T @ p.normal)))
@@ -373,6 +382,7 @@ def assemble_boxes(prims: list[Extracted], config: ExtractionConfig) -> list[Ext
         return fills[k] >= config.face_fill  # the others stay planes
 
     widths = [_width(p) for p in planes]  # once per plane, not per pair
+    centres = [p.points.mean(axis=0) for p in planes]
     by_segment: dict[int, list[int]] = {}
     for k, p in enumerate(planes):
         by_segment.setdefault(p.segment, []).append(k)
@@ -394,6 +404,10 @@ def assemble_boxes(prims: list[Extracted], config: ExtractionConfig) -> list[Ext
                 orthogonal
                 and any(intersect(planes[k].box, b.box, config.box_touch) for k in group)
                 and all(_share_an_edge(planes[k], b, config) for k in group)
+                and all(
+                    _convex(planes[k], b, centres[k], centres[j], config.box_concave)
+                    for k in group
+                )
                 and face(i)
                 and face(j)
             ):

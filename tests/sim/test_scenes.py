@@ -61,6 +61,12 @@ EXPECTED_EDGES = {
         ("crate", "can_on_crate"),
         ("book_stack", "box_small"),
     },
+    "shelf": {
+        ("floor", "shelf"),
+        ("shelf", "box_base"),
+        ("shelf", "cup"),
+        ("box_base", "cylinder_top"),
+    },
 }
 
 
