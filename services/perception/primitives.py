@@ -405,8 +405,7 @@ def assemble_boxes(prims: list[Extracted], config: ExtractionConfig) -> list[Ext
                 and any(intersect(planes[k].box, b.box, config.box_touch) for k in group)
                 and all(_share_an_edge(planes[k], b, config) for k in group)
                 and all(
-                    _convex(planes[k], b, centres[k], centres[j], config.box_concave)
-                    for k in group
+                    _convex(planes[k], b, centres[k], centres[j], config.box_concave) for k in group
                 )
                 and face(i)
                 and face(j)
