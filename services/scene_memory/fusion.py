@@ -105,6 +105,10 @@ class FusionConfig:
     #: m: what does not rise this far above a ground surface's top does not lie on it: the
     #: surface's own pieces (a table top fused in two), its edge's faces (``support``)
     level_with: float = 0.01
+    #: m: what rests on a raised ground surface (a table top, a board; not the floor, seen up
+    #: to the walls) has its centre over it (its weight on it), within this margin: a
+    #: shelf's side panel, its top beside the board and above it, does not
+    over_margin: float = 0.005
     #: negative evidence (``evidence.py``): a primitive that this many views in a row saw
     #: through (more than ``through_share`` of its points with evidence, at least
     #: ``through_points`` of them) is gone from the scene; 0: never
@@ -588,19 +592,22 @@ def _z_range(obb: Obb) -> tuple[float, float]:
     return float(obb.center[2]) - reach, float(obb.center[2]) + reach
 
 
+def _over(p: Primitive, g: Primitive, tolerance: float) -> bool:
+    """Is ``p``'s centre inside the level surface ``g``'s footprint (grown by ``tolerance``)?"""
+    local = (p.obb.center - g.obb.center) @ g.obb.rotation
+    k = int(np.argmax(np.abs(g.obb.rotation[2])))  # the surface's vertical axis
+    others = [m for m in range(3) if m != k]
+    return bool(np.all(np.abs(local[others]) <= g.obb.extent[others] / 2 + tolerance))
+
+
 def _under(p: Primitive, grounds: list[Primitive], tolerance: float, z_range=_z_range) -> bool:
     """Is ``p`` part of the furniture below a ground surface: its top not above the
     surface's (plus ``tolerance``), its centre inside the surface's footprint?"""
     top = z_range(p.obb)[1]
-    for g in grounds:
-        if g is p or top > z_range(g.obb)[1] + tolerance:
-            continue
-        local = (p.obb.center - g.obb.center) @ g.obb.rotation
-        k = int(np.argmax(np.abs(g.obb.rotation[2])))  # the surface's vertical axis
-        others = [m for m in range(3) if m != k]
-        if np.all(np.abs(local[others]) <= g.obb.extent[others] / 2 + tolerance):
-            return True
-    return False
+    return any(
+        g is not p and top <= z_range(g.obb)[1] + tolerance and _over(p, g, tolerance)
+        for g in grounds
+    )
 
 
 def in_frustum(obb: Obb, obs: SceneObservation) -> bool:
@@ -1102,7 +1109,8 @@ class Fusion:
         held by a and by m that a holds rests on m alone when its bottom is ``nearer_top``
         nearer m's top (support is direct: the thesis's graph has no edge that a chain of
         two gives). What does not rise ``level_with`` above a ground surface's top is a part
-        of it (a piece of a table top fused in two, a face of its edge), not on it. Structure
+        of it (a piece of a table top fused in two, a face of its edge), not on it; what has its
+        centre beside it is not on it either (``over_margin``). Structure
         (``_structure``: a wall, a cabinet's front) rests on nothing higher than the floor: a
         counter against a wall touches it, its top below the wall's visible foot, and seemed to
         hold it up."""
@@ -1111,6 +1119,10 @@ class Fusion:
         level, z_range = shapes.level_area, shapes.z_range
         grounds = [m.primitive for m in self.prims.values() if level(m.primitive) >= c.ground_area]
         bodies, out = self._stability_bodies(), {}
+
+        def raised(p: Primitive) -> bool:  # above the floor, which ends where the walls stand
+            return z_range(p.obb)[1] > c.floor_max
+
         for (a, b), n in self.occ.items():
             pa, pb = self.prims[a].primitive, self.prims[b].primitive
             on_ground = level(pa) >= c.ground_area
@@ -1122,6 +1134,8 @@ class Fusion:
                 continue
             if on_ground and bodies[b].top <= bodies[a].top + c.level_with:
                 continue  # a piece of the surface, a face of its edge
+            if on_ground and raised(pa) and not _over(pb, pa, c.over_margin):
+                continue  # beside a raised surface, its weight not on it: a side panel's top
             if z_range(pa.obb)[1] > c.floor_max and self._structure(pb, shapes):
                 continue  # a wall stands on the floor, not on the counter against it
             out[a, b] = n

@@ -123,12 +123,33 @@ def test_pieces_and_edge_faces_of_a_table_top_do_not_rest_on_it():
     rests = {("table", "cup"), ("piece", "tray")}
     for level_with, expected in (
         (FusionConfig.level_with, rests),
-        # without the rule: the slab holds the plane up (the plane's bottom at the slab's top;
-        # the slab's bottom, 3 cm under the plane, keeps the reverse edge out), the plane its face
+        # without the rule (nor over_margin's, for the plane's centre is not over the slab):
+        # the slab holds the plane up (the plane's bottom at the slab's top; the slab's
+        # bottom, 3 cm under the plane, keeps the reverse edge out), the plane its face
         (-np.inf, rests | {("piece", "table"), ("table", "face")}),
     ):
-        fusion = Fusion(FusionConfig(level_with=level_with))
+        over = FusionConfig.over_margin if np.isfinite(level_with) else np.inf
+        fusion = Fusion(FusionConfig(level_with=level_with, over_margin=over))
         update = fusion.update(observation(0, [table, piece, cup, tray, face], edges))
         assert len(fusion.prims) == 5
+        name = {update.mapping[i]: n for i, n in enumerate(names)}
+        assert {(name[a], name[b]) for a, b in fusion.support()} == expected
+
+
+def test_what_stands_beside_a_shelf_board_does_not_rest_on_it():
+    """A shelf board with a side panel's top beside it (3 cm thick, 3.5 cm above the board,
+    its centre 1.5 cm past the board's edge) and a box on the board: views report the board
+    holding both up. What rests on a ground surface has its centre over it (``over_margin``):
+    the panel's top is not on the board, the box is."""
+    board = plane(0, (1.3, 1.7), (-0.5, 0.5), 1.065)
+    panel_top = box(1, (1.5, 0.515, 1.0825), (0.4, 0.03, 0.035))
+    stack = box(2, (1.5, 0.1, 1.115), (0.16, 0.16, 0.1))
+    names = ["board", "panel", "box"]
+    for margin, expected in (
+        (FusionConfig.over_margin, {("board", "box")}),
+        (np.inf, {("board", "box"), ("board", "panel")}),  # without the rule
+    ):
+        fusion = Fusion(FusionConfig(over_margin=margin))
+        update = fusion.update(observation(0, [board, panel_top, stack], [(0, 1), (0, 2)]))
         name = {update.mapping[i]: n for i, n in enumerate(names)}
         assert {(name[a], name[b]) for a, b in fusion.support()} == expected
