@@ -1,12 +1,19 @@
-"""Boxes from planes (``primitives.assemble_boxes``): two orthogonal faces that touch make a box
-only where they meet at a convex edge, as a box's faces do."""
+"""Planes that are faces of a box, and planes that are no surface at all: two orthogonal faces
+that touch make a box only where they meet at a convex edge (``assemble_boxes``), and the
+border strips of a rectangle are no plane (``_a_frame``)."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from services.perception.obb import plane_box
-from services.perception.primitives import Extracted, ExtractionConfig, assemble_boxes
+from services.perception.primitives import (
+    Extracted,
+    ExtractionConfig,
+    _a_frame,
+    assemble_boxes,
+    fill,
+)
 
 
 def _face(origin, u, v, normal, rng) -> Extracted:
@@ -53,3 +60,25 @@ def test_a_table_top_and_the_wall_behind_it_stay_two_planes():
     top = _face((0, 0, 0.75), (0.6, 0, 0), (0, 1.2, 0), (0, 0, 1), rng)
     wall = _face((0.6, 0, 0.75), (0, 1.2, 0), (0, 0, 0.6), (-1, 0, 0), rng)
     assert [p.kind for p in assemble_boxes([top, wall], ExtractionConfig())] == ["plane", "plane"]
+
+
+def test_the_border_strips_of_a_rectangle_are_no_plane():
+    """An open shelf's front: its boards' and side panels' front edges, 3 cm strips joined at
+    the corners around a 1 m hole, are coplanar and one cluster; their "plane" fills little of
+    its rectangle (``fill``) and is refused (``_a_frame``), which a 1 m board is not."""
+    rng = np.random.default_rng(3)
+    strips = [
+        ((0, 0, 0), (0, 1.0, 0), (0, 0, 0.03)),
+        ((0, 0, 0.97), (0, 1.0, 0), (0, 0, 0.03)),
+        ((0, 0, 0), (0, 0.03, 0), (0, 0, 1.0)),
+        ((0, 0.97, 0), (0, 0.03, 0), (0, 0, 1.0)),
+    ]
+    faces = [_face(o, u, v, (-1, 0, 0), rng) for o, u, v in strips]
+    points = np.concatenate([f.points for f in faces])
+    n = np.array([-1.0, 0, 0])
+    frame = Extracted("plane", np.arange(len(points)), points, plane_box(points, n), 0, normal=n)
+    board = _face((0, 0, 0), (0, 1.0, 0), (0, 0, 0.4), (-1, 0, 0), rng)
+    config = ExtractionConfig()
+    assert fill(frame) < 0.2 and _a_frame(frame, config)
+    assert fill(board) > 0.9 and not _a_frame(board, config)
+    assert not _a_frame(frame, ExtractionConfig(frame_fill=0))
