@@ -646,6 +646,13 @@ REGISTRY: dict[str, Figure] = {
             15,
             render_generalization,
         ),
+        # a second subset of the same generator, disjoint from the first (issue 43)
+        Figure(
+            "generalization_5000",
+            "python benchmarks/generalization.py --scenes 30 --seed-base 5000 --out DIR",
+            15,
+            render_generalization,
+        ),
         Figure("real_data", "python benchmarks/real_data.py --out DIR", 24, render_real_data),
         # the peer on real_data's drifted redkitchen-a: one key=value line, rendered alike
         Figure("pose_graph", "python benchmarks/pose_graph.py --out DIR", 3, render_real_data),
