@@ -98,6 +98,15 @@ ROWS: tuple[Row, ...] = (
         lambda f: f"after the first view: {f['f1_view1_mean']}",
     ),
     Row(
+        "… a second subset of the generator (seeds 5000-5029)",
+        "generalization_5000",
+        lambda f: (
+            f"support F1 {f['f1_final_mean']} (mean of {f['scenes']} scenes; p10 "
+            f"{f['f1_final_p10']})"
+        ),
+        lambda f: f"after the first view: {f['f1_view1_mean']}",
+    ),
+    Row(
         "exploration by the live stack (`avs up --explore`)",
         "live_explore",
         lambda f: f"support F1 {f['live_f1_mean']} (mean of {f['scenes']} scenes)",
