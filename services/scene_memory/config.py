@@ -71,6 +71,12 @@ class SceneMemorySettings(ServiceSettings):
         max_length=2,
         description="… a registration's error σ with odometry_noise: m,degrees",
     )
+    registration_search: bool = Field(
+        True,
+        description="… where a frame is refused as too far from the map, register it again from "
+        "yaw seeds over the odometry's uncertainty (±6°) and take the answer only when no other "
+        "fits as well elsewhere (else 'ambiguous')",
+    )
     registration_interval: float = Field(
         0.5,
         ge=0,

@@ -14,6 +14,7 @@ from schemas import CloudFrame, PointCloud, RgbdFrame, SceneModel, SceneObservat
 from services.scene_memory.cloud_merge import add_frame
 from services.scene_memory.correction_filter import CorrectionFilter
 from services.scene_memory.fusion import Fusion, FusionConfig, Update, voxel_keys
+from services.scene_memory.hypotheses import RETRY, SearchConfig, search
 from services.scene_memory.occupancy import OccupancyConfig, OccupancyMap
 from services.scene_memory.registration import (
     RegistrationConfig,
@@ -63,6 +64,10 @@ class MemoryConfig:
     #: between is placed by the last correction (odometry drifts over seconds, not from one
     #: frame to the next at 15 fps) and not added to the registration map; 0: every frame
     registration_interval: float = 0.0
+    #: where the local registration is refused as too far from the map, it is registered
+    #: again from seeds over the odometry's uncertainty and taken when one answer stands out
+    #: (``hypotheses``); None: the local answer stands
+    search: SearchConfig | None = field(default_factory=SearchConfig)
 
 
 class SceneMemory:
@@ -76,6 +81,8 @@ class SceneMemory:
     #: the capture stamp of the last frame registration was tried on (None: none yet), and the
     #: frames since placed by the last correction instead (``registration_interval``)
     registered_stamp: float | None = None
+    #: the capture time of the last frame registered again by a search (``hypotheses``)
+    searched_stamp: float | None = None
     registrations_not_due: int = 0
     #: what frames are registered against (``registration``): built as frames are integrated,
     #: rebuilt from the registered cloud for a snapshot written before it existed
@@ -249,9 +256,21 @@ class SceneMemory:
             return prior, False
         self.registered_stamp = frame.stamp
         result = register(cam, prior, self._registration_map(), c)
+        s, searched = self.config.search, False
+        if (
+            not result.accepted
+            and s is not None
+            and result.reason in RETRY
+            and (self.searched_stamp is None or frame.stamp - self.searched_stamp >= s.interval)
+        ):
+            self.searched_stamp, searched = frame.stamp, True
+            found, _ = search(cam, prior, self._registration_map(), c, s)
+            found.ms += result.ms
+            if found.accepted or found.reason == "ambiguous":
+                result = found
         self.last_registration = {
             "accepted": result.accepted, "reason": result.reason, "fitness": result.fitness,
-            "rmse": result.rmse, "ms": result.ms, "stamp": frame.stamp,
+            "rmse": result.rmse, "ms": result.ms, "stamp": frame.stamp, "searched": searched,
         }  # fmt: skip
         self.timings_ms["registration_ms"] = result.ms
         if not result.accepted:

@@ -39,6 +39,7 @@ from services.scene_memory import kernels
 from services.scene_memory.config import SceneMemorySettings
 from services.scene_memory.correction_filter import OdometryNoise, RegistrationNoise
 from services.scene_memory.fusion import FusionConfig
+from services.scene_memory.hypotheses import SearchConfig
 from services.scene_memory.memory import (
     REGISTERED_CAMERA,
     MemoryConfig,
@@ -96,6 +97,7 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
             keyframe_turn=s.keyframe_turn,
             registration=registration_config(s) if s.registration else None,
             registration_interval=s.registration_interval,
+            search=SearchConfig() if s.registration_search else None,
         )
     )
 

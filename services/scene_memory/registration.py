@@ -38,6 +38,9 @@ from services.scene_memory.correction_filter import OdometryNoise, RegistrationN
 from services.scene_memory.icp import FULL, PLANAR, candidates, icp, residuals
 from services.scene_memory.voxel_map import VoxelMap, means, summarise
 
+#: ``constraint``: a normal whose |z| is at least this is a level surface's (about 25°)
+LEVEL = 0.9
+
 
 @dataclass(frozen=True)
 class Pass:
@@ -88,6 +91,10 @@ class RegistrationConfig:
     #: ... and geometry that constrains every direction: the point-to-plane system's smallest
     #: eigenvalue over its largest (a plane: ~0; a table top with objects: ~1e-2)
     min_conditioning: float = 1e-3
+    #: ... and at least this λ_min / n (``constraint``): enough of the frame on upright
+    #: surfaces that hold the weakest direction (a round table with a vase at its centre,
+    #: seen from its far side: 0; tables seen from opposite sides: 3e-4 to 7e-3)
+    min_strength: float = 2e-4
     #: "planar": refuse a frame whose height (m) or tilt (degrees) the full point-to-plane step
     #: from the planar fit would change by more than this: no head kinematics is that far off
     #: on a level platform (a ramp, a lifted wheel: "full"), and a planar fit of such a frame
@@ -163,6 +170,8 @@ class Registration:
     #: "planar": the height (m) and tilt (degrees) the full step from the planar fit wants
     off_plane_m: float = 0.0
     off_plane_deg: float = 0.0
+    #: λ_min / n of the point-to-plane system (``constraint``)
+    strength: float = 0.0
 
 
 def camera_points(
@@ -176,10 +185,22 @@ def camera_points(
 
 
 def conditioning(source: np.ndarray, normals: np.ndarray, planar: bool = False) -> float:
-    """λ_min / λ_max of the point-to-plane system Σ JᵀJ, J = [(p × n)ᵀ nᵀ] (points centred, so
-    rotation and translation are on one scale only after dividing the rotation part by the
-    cloud's radius); ``planar``: of its 3×3 part in (yaw, x, y), J = [(p × n)_z nx ny], the
-    radius the horizontal one (a level floor constrains none of them: 0)."""
+    """λ_min / λ_max of the point-to-plane system Σ JᵀJ (``constraint``)."""
+    return constraint(source, normals, planar)[0]
+
+
+def constraint(
+    source: np.ndarray, normals: np.ndarray, planar: bool = False
+) -> tuple[float, float]:
+    """The point-to-plane system Σ JᵀJ, J = [(p × n)ᵀ nᵀ] (points centred, so rotation and
+    translation are on one scale only after dividing the rotation part by the cloud's radius);
+    ``planar``: its 3×3 part in (yaw, x, y), J = [(p × n)_z nx ny], the radius the horizontal
+    one (a level floor constrains none of them). Returns λ_min / λ_max (Gelfand et al. 2003)
+    and λ_min / n, the share of the points that holds the weakest direction (``planar``: of
+    the rows of upright surfaces only). A ratio is blind to scale: where nearly every point
+    lies on a level surface, the depth noise's tilt of their normals alone makes the system
+    look round (a round table seen from its far side: 19 of 4361 points on anything upright,
+    λ_min / λ_max 0.5, λ_min / n 0)."""
     p = source - source.mean(axis=0)
     if planar:
         radius = max(float(np.sqrt((p[:, :2] ** 2).sum(axis=1).mean())), 1e-6)
@@ -189,7 +210,13 @@ def conditioning(source: np.ndarray, normals: np.ndarray, planar: bool = False) 
         radius = max(float(np.sqrt((p**2).sum(axis=1).mean())), 1e-6)
         J = np.hstack([np.cross(p, normals) / radius, normals])
     eig = np.linalg.eigvalsh(J.T @ J)
-    return float(eig[0] / eig[-1]) if eig[-1] > 0 else 0.0
+    if eig[-1] <= 0:
+        return 0.0, 0.0
+    # the share: of the rows of surfaces that can hold a shift or turn in the plane solved
+    # for, not of the noise on level ones (planar: normals more than ~25° off the vertical)
+    upright = np.abs(normals[:, 2]) < LEVEL if planar else slice(None)
+    held = np.linalg.eigvalsh(J[upright].T @ J[upright])[0] if planar else eig[0]
+    return float(eig[0] / eig[-1]), float(max(held, 0.0) / len(J))
 
 
 def depth_weights(z: np.ndarray, c: RegistrationConfig) -> np.ndarray:
@@ -265,11 +292,11 @@ def register(
                            correction, c.passes[k].distance, caches[k], camera)  # fmt: skip
     fitness = float(near.mean())
     rmse = float(np.sqrt(np.mean(r[matched] ** 2))) if matched.any() else math.inf
-    cond = 0.0
+    cond = strength = 0.0
     if matched.sum() >= 6:
         moved = source[matched] @ correction[:3, :3].T + correction[:3, 3]
-        cond = conditioning(moved, normals[matched], planar)
-    scores = {"fitness": fitness, "rmse": rmse, "conditioning": cond}
+        cond, strength = constraint(moved, normals[matched], planar)
+    scores = {"fitness": fitness, "rmse": rmse, "conditioning": cond, "strength": strength}
     if planar:
         scores["off_plane_m"], scores["off_plane_deg"] = off_plane(
             sources[0], target.levels[0], c.passes[0], correction, correction @ T_prior,
@@ -279,7 +306,7 @@ def register(
         return refuse("low_fitness", **scores)
     if rmse > c.max_rmse:
         return refuse("high_rmse", **scores)
-    if cond < c.min_conditioning:
+    if cond < c.min_conditioning or strength < c.min_strength:
         return refuse("degenerate", **scores)
     if planar and (
         scores["off_plane_m"] > c.max_off_plane_m or scores["off_plane_deg"] > c.max_off_plane_deg

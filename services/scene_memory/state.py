@@ -27,6 +27,7 @@ from schemas import scene as scene_schemas
 from services.scene_memory import (
     correction_filter,
     fusion,
+    hypotheses,
     memory,
     occupancy,
     registration,
@@ -51,6 +52,7 @@ ALLOWED: dict[str, type] = {
         registration.RegistrationConfig,
         registration.Pass,
         registration.RegistrationMap,
+        hypotheses.SearchConfig,
         correction_filter.CorrectionFilter,
         correction_filter.OdometryNoise,
         correction_filter.RegistrationNoise,
