@@ -18,6 +18,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     generate.add_argument("--seed", type=int, required=True, help="random seed")
     generate.add_argument("--out", type=Path, required=True, metavar="FILE", help="MJCF file")
+    generate.add_argument(
+        "--shelf", action="store_true",
+        help="an open shelf (two boards, side panels) with a stack on its upper board, not a table",
+    )  # fmt: skip
     generate.set_defaults(func=_generate)
     validate = actions.add_parser(
         "validate",
@@ -38,7 +42,7 @@ def _generate(args: argparse.Namespace) -> int:
               file=sys.stderr)  # fmt: skip
         return 2
     try:
-        scene = generate(args.seed)
+        scene = generate(args.seed, shelf=args.shelf)
     except GenerationError as e:
         print(f"avs scene generate: {e}", file=sys.stderr)
         return 1

@@ -96,6 +96,28 @@ def test_the_stack_on_a_shelfs_upper_board_is_resolved(tmp_path):
     assert m["views"][-1]["support_f1"] >= 0.85, [v["support_f1"] for v in m["views"]]
 
 
+def test_a_generated_shelf_is_explored_until_its_stack_is_resolved(tmp_path):
+    """A generated shelf (``avs scene generate --shelf``, seed 2: box_1 on box_0 on the upper
+    board, 96 cm up, two single objects beside them), five views: the stack's two support
+    edges are in the final model and the support F1 is at least 0.85. Measured 2026-12-07:
+    F1 0.89, 0.80, 1.00, 0.89, 0.89 over the views, the stack's edges found from the first.
+    Not every generated shelf passes yet: on seed 1 the board's edge to the stack is lost at
+    the fifth view (registration refused, the pose 32 mm off) and seed 3 stops after two
+    views (by quality) without the stack's edge."""
+    from services.sim.generate import generate
+
+    scene = generate(2, shelf=True)
+    path = tmp_path / "shelf_2.xml"
+    path.write_text(scene.text)
+    out = tmp_path / "episode"
+    run(["explore", "--scene", str(path), "--views", "5", "--out", str(out)], timeout=600)
+    m = json.loads((out / "metrics.json").read_text())
+    edges = {tuple(e) for e in m["final_support_edges"]}
+    bottom, top = scene.arrangements[0].objects
+    assert {("table", bottom), (bottom, top)} <= edges, edges
+    assert m["views"][-1]["support_f1"] >= 0.85, [v["support_f1"] for v in m["views"]]
+
+
 @pytest.mark.timeout(1500)  # 15 episodes, two at a time: 2.5 minutes on a quiet machine
 def test_booth_orderings_the_seeds_support(tmp_path):
     """Fig. 4.11 / 4.12, 5 views each, view spheres around the three meeting points, a 2 cm

@@ -335,3 +335,32 @@ def test_cli_validate_exit_codes(tmp_path):
     out = _avs("validate", str(tmp_path / "missing.xml"))
     assert out.returncode == 2
     assert len(out.stderr.strip().splitlines()) == 1 and "no such file" in out.stderr
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_generated_shelf_holds_a_stack_on_its_upper_board(seed, tmp_path):
+    """``generate(seed, shelf=True)``: an open shelf (two boards between two side panels, its
+    body named ``table``), a stack and 0-2 single objects on the upper board, all at rest;
+    the sim's support graph is the planned one (floor → shelf → bottom of the stack → top),
+    and nothing rests on the lower board or the floor."""
+    scene = generate(seed, shelf=True)
+    assert scene.table.kind == "shelf" and scene.arrangements[0].kind == "stack"
+    assert {a.kind for a in scene.arrangements[1:]} <= {"single"}
+    assert 0.85 <= scene.table.height <= 1.05 and 0.35 <= scene.table.lower <= 0.5
+    path = tmp_path / "shelf.xml"
+    path.write_text(scene.text)
+    assert validate_scene(path) == []
+    root = ET.parse(path).getroot()
+    shelf = next(b for b in root.iter("body") if b.get("name") == "table")
+    names = [g.get("name") for g in shelf.iter("geom")]
+    assert names.count("board_low") == 1 and names.count("table_top") == 1 and len(names) == 4
+    world = World(path, ROBOTS["armar6"])
+    bodies = [world.model.body(n).id for n in world.info.objects]
+    assert np.all(world.data.xpos[bodies][:, 2] > scene.table.height)  # all on the upper board
+    start = world.data.xpos[bodies].copy()
+    world.step(1000)
+    assert np.linalg.norm(world.data.xpos[bodies] - start, axis=1).max() < 1e-3
+    edges, _ = support_graph(world.model, world.data, world.info)
+    assert set(edges) == scene.support_edges
+    bottom, top = scene.arrangements[0].objects
+    assert {("table", bottom), (bottom, top)} <= set(edges)
