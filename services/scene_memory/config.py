@@ -74,8 +74,8 @@ class SceneMemorySettings(ServiceSettings):
     registration_search: bool = Field(
         True,
         description="… where a frame is refused as too far from the map, register it again from "
-        "yaw seeds over the odometry's uncertainty (±6°) and take the answer only when no other "
-        "fits as well elsewhere (else 'ambiguous')",
+        "seeds over the odometry's uncertainty (turns of ±3° and ±6°, shifts of ±8 cm) and take "
+        "the answer only when no other fits as well elsewhere (else 'ambiguous')",
     )
     registration_interval: float = Field(
         0.5,
