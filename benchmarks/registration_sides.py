@@ -176,7 +176,7 @@ def run_pair(pair: dict, trials: int) -> list[dict]:
         result = local
         t0 = time.perf_counter()
         if not local.accepted and local.reason in RETRY:
-            found, _ = search(far_cam, T_prior, target, c)
+            found, _ = search(far_cam, T_prior, target, c, map_points=near_w)
             if found.accepted or found.reason == "ambiguous":
                 result = found
         row["search_ms"] = row["local_ms"] + (time.perf_counter() - t0) * 1e3

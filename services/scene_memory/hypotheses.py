@@ -30,11 +30,12 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from services.common.poses import pose_difference
+from services.scene_memory.outline import OutlineConfig, outline, refine
 from services.scene_memory.registration import (
     Registration,
     RegistrationConfig,
@@ -66,6 +67,14 @@ class SearchConfig:
     #: ... farther than this from it (m, degrees) makes the frame ambiguous
     distinct_m: float = 0.01
     distinct_deg: float = 0.5
+    #: the chosen pose is then refined by the outlines of the level surfaces (``outline``),
+    #: where the map's points are given: taken when at least ``outline_weight`` of the
+    #: outline matched (Tukey weight) and the refinement moved it at most ``outline_m`` /
+    #: ``outline_deg``
+    outline: OutlineConfig | None = field(default_factory=OutlineConfig)
+    outline_weight: float = 60.0
+    outline_m: float = 0.08
+    outline_deg: float = 4.0
     #: the memory searches at most once in this many seconds of capture time (s): 9 seeds
     #: cost a frame 150-300 ms, and from the far side of a table every frame may be refused
     interval: float = 2.0
@@ -98,9 +107,12 @@ def search(
     target: RegistrationMap | np.ndarray,
     config: RegistrationConfig | None = None,
     search: SearchConfig | None = None,
+    map_points: np.ndarray | None = None,
 ) -> tuple[Registration, list[Registration]]:
     """Register the frame from every seed; the chosen registration (refused, with the prior,
-    when no hypothesis or more than one) and the hypotheses found."""
+    when no hypothesis or more than one) and the hypotheses found. ``map_points``: the map's
+    points around the frame (world): the chosen pose is then refined by the outlines of the
+    level surfaces both see (``outlined``)."""
     c = config or RegistrationConfig()
     s = search or SearchConfig()
     t0 = time.perf_counter()
@@ -130,6 +142,11 @@ def search(
             "fitness": last.fitness, "rmse": last.rmse, "conditioning": last.conditioning
         }  # fmt: skip
         return Registration(T_prior.copy(), eye, False, ms=ms, reason=reason, **scores), found
+    if s.outline is not None and map_points is not None:
+        # each hypothesis refined by the outlines: point-to-plane minima 1-5 cm apart that are
+        # one pose come together, and those that stay apart are told apart below
+        target_outline = map_outline(points_camera, T_prior, map_points, s.outline)
+        found = [outlined(r, points_camera, target_outline, s) for r in found]
     best = max(found, key=lambda r: r.fitness)
     for r in found:
         apart = pose_difference(best.T_world_camera, r.T_world_camera)
@@ -141,5 +158,37 @@ def search(
                 conditioning=best.conditioning, ms=ms, reason="ambiguous",
             )  # fmt: skip
             return out, found
-    best.ms = ms
+    best.ms = (time.perf_counter() - t0) * 1e3
     return best, found
+
+
+def map_outline(
+    points_camera: np.ndarray, T: np.ndarray, map_points: np.ndarray, c: OutlineConfig
+) -> np.ndarray:
+    """The outlines of the level surfaces of the map's points within 30 cm of the frame (as
+    ``T`` places it): the search's seeds move it by 15 cm at most."""
+    frame = points_camera @ T[:3, :3].T + T[:3, 3]
+    lo, hi = frame.min(axis=0) - 0.3, frame.max(axis=0) + 0.3
+    near = np.all((map_points >= lo) & (map_points <= hi), axis=1)
+    return outline(map_points[near], c)
+
+
+def outlined(
+    r: Registration, points_camera: np.ndarray, target: np.ndarray, s: SearchConfig
+) -> Registration:
+    """``r`` with its pose refined by the level surfaces' outlines (``outline.refine``, the
+    map's ``target``): point-to-plane ICP from the far side of a table leaves 10-15 mm and up
+    to 3° (it sees little that holds x, y or yaw), the outlines of the table top and the boxes'
+    tops hold all three. Unchanged where too little of the outline matched or the refinement
+    would move it far."""
+    assert s.outline is not None
+    T = r.T_world_camera
+    frame = points_camera @ T[:3, :3].T + T[:3, 3]
+    C, weight = refine(outline(frame, s.outline), target, s.outline)
+    moved, turn = pose_difference(T, C @ T)
+    if weight < s.outline_weight or moved > s.outline_m or turn > s.outline_deg:
+        return r
+    r.T_world_camera = C @ T
+    r.correction = C @ r.correction
+    r.outlined = True
+    return r

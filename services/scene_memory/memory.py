@@ -264,7 +264,7 @@ class SceneMemory:
             and (self.searched_stamp is None or frame.stamp - self.searched_stamp >= s.interval)
         ):
             self.searched_stamp, searched = frame.stamp, True
-            found, _ = search(cam, prior, self._registration_map(), c, s)
+            found, _ = search(cam, prior, self._registration_map(), c, s, self.cloud)
             found.ms += result.ms
             if found.accepted or found.reason == "ambiguous":
                 result = found

@@ -172,6 +172,8 @@ class Registration:
     off_plane_deg: float = 0.0
     #: λ_min / n of the point-to-plane system (``constraint``)
     strength: float = 0.0
+    #: refined by the level surfaces' outlines (``hypotheses.outlined``)
+    outlined: bool = False
 
 
 def camera_points(

@@ -30,6 +30,7 @@ from services.scene_memory import (
     hypotheses,
     memory,
     occupancy,
+    outline,
     registration,
     voxel_map,
 )
@@ -53,6 +54,7 @@ ALLOWED: dict[str, type] = {
         registration.Pass,
         registration.RegistrationMap,
         hypotheses.SearchConfig,
+        outline.OutlineConfig,
         correction_filter.CorrectionFilter,
         correction_filter.OdometryNoise,
         correction_filter.RegistrationNoise,
