@@ -77,6 +77,13 @@ class SceneMemorySettings(ServiceSettings):
         "seeds over the odometry's uncertainty (turns of ±3° and ±6°, shifts of ±8 cm) and take "
         "the answer only when no other fits as well elsewhere (else 'ambiguous')",
     )
+    registration_search_window: list[float] = Field(
+        [0.1, 4.0],
+        min_length=2,
+        max_length=2,
+        description="… the odometry error the search is for, m,degrees: no hypothesis farther "
+        "from the odometry's pose is taken (the sim's odometry: 1.5 %% of the distance, 1° a turn)",
+    )
     registration_interval: float = Field(
         0.5,
         ge=0,

@@ -84,6 +84,14 @@ def registration_config(s: SceneMemorySettings) -> RegistrationConfig:
     )
 
 
+def search_config(s: SceneMemorySettings) -> SearchConfig | None:
+    """The registration's second stage the settings ask for (None: off)."""
+    if not s.registration_search:
+        return None
+    m, deg = s.registration_search_window
+    return SearchConfig(max_correction_m=m, max_correction_deg=deg)
+
+
 def new_memory(s: SceneMemorySettings) -> SceneMemory:
     return SceneMemory(
         MemoryConfig(
@@ -97,7 +105,7 @@ def new_memory(s: SceneMemorySettings) -> SceneMemory:
             keyframe_turn=s.keyframe_turn,
             registration=registration_config(s) if s.registration else None,
             registration_interval=s.registration_interval,
-            search=SearchConfig() if s.registration_search else None,
+            search=search_config(s),
         )
     )
 

@@ -172,8 +172,10 @@ class Registration:
     off_plane_deg: float = 0.0
     #: λ_min / n of the point-to-plane system (``constraint``)
     strength: float = 0.0
-    #: refined by the level surfaces' outlines (``hypotheses.outlined``)
+    #: refined by the level surfaces' outlines (``hypotheses.outlined``), and how much of the
+    #: outline agreed (Tukey weight)
     outlined: bool = False
+    outline_weight: float = 0.0
 
 
 def camera_points(
