@@ -25,10 +25,10 @@ that are one pose come together.
 
 Measured side by side on 30 generated tables seen from opposite sides with 5 cm / 5° of
 odometry error, 4 errors a table (``benchmarks/registration_sides.py``): within 1 cm and 0.5°
-39 of 120, within 2 cm 4 more, 6 wrong poses taken (4 by the local stage), 71 refused;
-Open3D's coloured ICP (Park et al. 2017) from the same prior 6, 15 and 99 wrong; Open3D's
-FPFH features with RANSAC, the floor removed, turn nearly every frame 180° (a table top is
-symmetric and outweighs what stands on it; no prior bounds the search).
+39 of 120, within 2 cm 4 more, 5 wrong poses taken (4 by the local stage), 72 refused (the
+window 10 cm / 7°); Open3D's coloured ICP (Park et al. 2017) from the same prior 6, 15 and 99
+wrong; Open3D's FPFH features with RANSAC, the floor removed, turn nearly every frame 180° (a
+table top is symmetric and outweighs what stands on it; no prior bounds the search).
 """
 
 from __future__ import annotations
