@@ -45,6 +45,7 @@ from services.scene_memory.registration import (
     Registration,
     RegistrationConfig,
     RegistrationMap,
+    refused,
     register,
 )
 
@@ -145,13 +146,12 @@ def search(
         r.correction = r.T_world_camera @ np.linalg.inv(T_prior)
         found.append(r)
     ms = (time.perf_counter() - t0) * 1e3
-    eye = np.eye(4)
     if not found:
         reason = "no_hypothesis"
         scores = {} if last is None else {
             "fitness": last.fitness, "rmse": last.rmse, "conditioning": last.conditioning
         }  # fmt: skip
-        return Registration(T_prior.copy(), eye, False, ms=ms, reason=reason, **scores), found
+        return refused(T_prior, reason, ms, **scores), found
     if s.outline is not None and map_points is not None:
         # each hypothesis refined by the outlines: point-to-plane minima 1-5 cm apart that are
         # one pose come together, and those that stay apart are told apart below
@@ -163,11 +163,9 @@ def search(
         if r.fitness >= s.rival_fitness * best.fitness and (
             apart[0] > s.distinct_m or apart[1] > s.distinct_deg
         ):
-            out = Registration(
-                T_prior.copy(), eye, False, fitness=best.fitness, rmse=best.rmse,
-                conditioning=best.conditioning, ms=ms, reason="ambiguous",
-            )  # fmt: skip
-            return out, found
+            scores = {"fitness": best.fitness, "rmse": best.rmse,
+                      "conditioning": best.conditioning}  # fmt: skip
+            return refused(T_prior, "ambiguous", ms, **scores), found
     best.ms = (time.perf_counter() - t0) * 1e3
     return best, found
 

@@ -261,7 +261,7 @@ class SceneMemory:
             not result.accepted
             and s is not None
             and result.reason in RETRY
-            and (self.searched_stamp is None or frame.stamp - self.searched_stamp >= s.interval)
+            and _due(self.searched_stamp, frame.stamp, s.interval)
         ):
             self.searched_stamp, searched = frame.stamp, True
             found, _ = search(cam, prior, self._registration_map(), c, s, self.cloud)
@@ -301,8 +301,7 @@ class SceneMemory:
     def registration_due(self, stamp: float) -> bool:
         """Whether a frame captured at ``stamp`` is registered: ``registration_interval`` has
         passed since the last one was (or time went back: a reset sim)."""
-        last, interval = self.registered_stamp, self.config.registration_interval
-        return last is None or interval <= 0 or not 0 <= stamp - last < interval
+        return _due(self.registered_stamp, stamp, self.config.registration_interval)
 
     def _registration_map(self) -> RegistrationMap:
         if self.registration_map is None:
@@ -389,3 +388,9 @@ def registered_cloud(
         voxel_size=max(voxel, memory.config.cloud_voxel),
         depth_max=frame.depth_max,
     )
+
+
+def _due(last: float | None, stamp: float, interval: float) -> bool:
+    """Whether ``interval`` seconds of capture time have passed since ``last`` (None: never),
+    or time went back (a reset sim: its clock starts again)."""
+    return last is None or interval <= 0 or not 0 <= stamp - last < interval

@@ -243,6 +243,11 @@ def _sources(points_camera: np.ndarray, c: RegistrationConfig) -> list[np.ndarra
     return out
 
 
+def refused(T_prior: np.ndarray, reason: str, ms: float, **scores: float) -> Registration:
+    """A refusal for ``reason``: the prior kept, no correction."""
+    return Registration(T_prior.copy(), np.eye(4), False, ms=ms, reason=reason, **scores)
+
+
 def register(
     points_camera: np.ndarray,
     T_prior: np.ndarray,
@@ -253,11 +258,9 @@ def register(
     map (a ``RegistrationMap``, or the map's points in the world frame)."""
     c = config or RegistrationConfig()
     t0 = time.perf_counter()
-    eye = np.eye(4)
 
     def refuse(reason: str, **scores: float) -> Registration:
-        ms = (time.perf_counter() - t0) * 1e3
-        return Registration(T_prior.copy(), eye, False, ms=ms, reason=reason, **scores)
+        return refused(T_prior, reason, (time.perf_counter() - t0) * 1e3, **scores)
 
     if not isinstance(target, RegistrationMap):
         target = RegistrationMap.of(np.asarray(target, np.float64), c)

@@ -206,40 +206,41 @@ class _Object:
 
 def draw_table(rng: np.random.Generator) -> Table:
     """A table 0.6–1.6 × 0.5–1.0 m, top 0.6–0.9 m high, 1–2 m from the origin, any yaw."""
-    distance, bearing = rng.uniform(1.0, 2.0), rng.uniform(-math.pi, math.pi)
-    rgb = np.clip(
-        FURNITURE_RGB[rng.integers(len(FURNITURE_RGB))] + rng.uniform(-0.04, 0.04, 3), 0, 1
-    )
-    return Table(
-        x=float(distance * math.cos(bearing)),
-        y=float(distance * math.sin(bearing)),
-        yaw=float(rng.uniform(-math.pi, math.pi)),
-        half_length=_mm(rng, 0.3, 0.8),
-        half_depth=_mm(rng, 0.25, 0.5),
-        thickness=_mm(rng, 0.03, 0.05),
-        height=_mm(rng, 0.6, 0.9),
-        rgb=tuple(round(float(c), 3) for c in rgb),
-    )
+    return _furniture(rng, (1.0, 2.0), (0.3, 0.8), (0.25, 0.5), (0.03, 0.05), (0.6, 0.9))
 
 
 def draw_shelf(rng: np.random.Generator) -> Table:
     """An open shelf (issue 43): two boards 0.7-1.0 × 0.3-0.44 m between two side panels, the
     upper one's top 0.85-1.05 m high (below the head camera, so its top is seen from a step
     back), the lower one's 0.35-0.5 m; 1.2-2 m from the origin, any yaw."""
-    distance, bearing = rng.uniform(1.2, 2.0), rng.uniform(-math.pi, math.pi)
+    table = _furniture(rng, (1.2, 2.0), (0.35, 0.5), (0.15, 0.22), (0.02, 0.03), (0.85, 1.05))
+    return replace(table, lower=_mm(rng, 0.35, 0.5))
+
+
+def _furniture(
+    rng: np.random.Generator,
+    distance: tuple[float, float],
+    half_length: tuple[float, float],
+    half_depth: tuple[float, float],
+    thickness: tuple[float, float],
+    height: tuple[float, float],
+) -> Table:
+    """A table's top drawn from these ranges (m), at a distance from the origin in any
+    direction, any yaw, a furniture colour (the draws' order is the generator's contract: a
+    seed's scene stays the same)."""
+    d, bearing = rng.uniform(*distance), rng.uniform(-math.pi, math.pi)
     rgb = np.clip(
         FURNITURE_RGB[rng.integers(len(FURNITURE_RGB))] + rng.uniform(-0.04, 0.04, 3), 0, 1
     )
     return Table(
-        x=float(distance * math.cos(bearing)),
-        y=float(distance * math.sin(bearing)),
+        x=float(d * math.cos(bearing)),
+        y=float(d * math.sin(bearing)),
         yaw=float(rng.uniform(-math.pi, math.pi)),
-        half_length=_mm(rng, 0.35, 0.5),
-        half_depth=_mm(rng, 0.15, 0.22),
-        thickness=_mm(rng, 0.02, 0.03),
-        height=_mm(rng, 0.85, 1.05),
+        half_length=_mm(rng, *half_length),
+        half_depth=_mm(rng, *half_depth),
+        thickness=_mm(rng, *thickness),
+        height=_mm(rng, *height),
         rgb=tuple(round(float(c), 3) for c in rgb),
-        lower=_mm(rng, 0.35, 0.5),
     )
 
 
