@@ -1049,16 +1049,40 @@ class Fusion:
                 if (
                     inside and on_surface(solid.primitive, m.points, c.surface_tolerance)
                 ) or self._same_round(solid, m, share):
-                    self.prims.pop(m.id)
-                    self._merge_into(solid, m.points.astype(np.float64))
-                    if kind in ROUND:
-                        self._vote_round(solid, m.primitive, m.round_votes)
-                    self._rename_edges(m.id, t)
-                    for k, v in result.mapping.items():
-                        if v == m.id:
-                            result.mapping[k] = t
-                    gone += 1
+                    keep, drop = solid, m
+                elif kind in SOLIDS and self._same_solid(solid, m, share):
+                    # one thing held twice (Algorithm 2's "same", memory against memory):
+                    # the one seen in more views takes the other's points
+                    keep, drop = (solid, m) if solid.views >= m.views else (m, solid)
+                else:
+                    continue
+                self.prims.pop(drop.id)
+                views = max(keep.views, drop.views)
+                self._merge_into(keep, drop.points.astype(np.float64))
+                keep.views = views + 1
+                if drop.primitive.model.kind in ROUND:
+                    self._vote_round(keep, drop.primitive, drop.round_votes)
+                self._rename_edges(drop.id, keep.id)
+                for k, v in result.mapping.items():
+                    if v == drop.id:
+                        result.mapping[k] = keep.id
+                gone += 1
+                if drop is solid:
+                    break
         return gone
+
+    def _same_solid(self, a: MemoryPrimitive, b: MemoryPrimitive, share: float) -> bool:
+        """Two solids of the memory that Algorithm 2 would call the same had one been the
+        view's: each holds more than λ_o of the other's points (``share``: b's in a), and the
+        points of one lie on the other's surface. A solid fused twice where a view's segment
+        fell between the two (pose error of a centimetre or two, a face seen alone first)."""
+        c = self.config
+        if share <= c.lambda_o:
+            return False
+        if inlier(a.points, b.primitive.obb, c.obb_margin, self._boxes) <= c.lambda_o:
+            return False
+        tol = c.surface_tolerance
+        return on_surface(a.primitive, b.points, tol) or on_surface(b.primitive, a.points, tol)
 
     def _floor_height(self, obs: SceneObservation) -> float | None:
         """Height of the lowest level plane known (memory or this view): the floor; None
